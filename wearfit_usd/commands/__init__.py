@@ -1,0 +1,1 @@
+"""One module per ``wearfit`` subcommand (argument parsing and I/O only)."""

@@ -1,0 +1,149 @@
+"""`wearfit inspect FILE`: what a USD stage or BVH clip holds."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+
+
+def register(sub, common):
+    p = sub.add_parser("inspect", parents=[common],
+                       help="print skeleton, meshes, skin weights, units and frames of a USD or BVH file",
+                       description="Print what a USD stage (skeleton, skinned body, items, skin-weight "
+                                   "statistics, up axis, units, time range) or a BVH clip (joints, "
+                                   "channels, rotation orders, frames, fps, units) holds.")
+    p.add_argument("file", help="a .usd/.usda/.usdc/.usdz stage or a .bvh clip")
+    p.add_argument("--json", action="store_true", help="print machine-readable JSON instead of text")
+    p.add_argument("--joints", action="store_true", help="list every joint")
+    p.add_argument("--bvh-scale", type=float, default=None,
+                   help="BVH: metres per file unit (default: detected)")
+    p.set_defaults(func=run)
+    return p
+
+
+def skin_weight_stats(mesh, n_joints: int) -> dict:
+    w = mesh.joint_weights
+    ind = mesh.joint_indices
+    nz = w > 1e-6
+    used = np.zeros(n_joints, dtype=bool)
+    used[ind[nz]] = True
+    return {
+        "element_size": int(w.shape[1]),
+        "influences_per_vertex_max": int(nz.sum(axis=1).max()),
+        "influences_per_vertex_mean": round(float(nz.sum(axis=1).mean()), 3),
+        "joints_with_weights": int(used.sum()),
+        "joints_without_weights": int(n_joints - used.sum()),
+    }
+
+
+def describe_usd(path: Path) -> dict:
+    from pxr import UsdGeom
+    from ..usd_io import open_stage, read_character
+    stage = open_stage(path)
+    char = read_character(path, require_skeleton=False)
+    info = {
+        "file": str(path),
+        "kind": "usd",
+        "up_axis": char.up_axis,
+        "meters_per_unit": char.meters_per_unit,
+        "time_codes_per_second": stage.GetTimeCodesPerSecond(),
+        "frames_per_second": stage.GetFramesPerSecond(),
+        "start_time_code": stage.GetStartTimeCode(),
+        "end_time_code": stage.GetEndTimeCode(),
+    }
+    lo, hi = char.body.points.min(0), char.body.points.max(0)
+
+    def mesh_info(m):
+        return {"name": m.name, "path": m.path, "points": m.n_points,
+                "polygons": int(len(m.face_vertex_counts)), "triangles": int(len(m.faces)),
+                "skinned": m.is_skinned,
+                "primvars": [p.name for p in m.primvars]}
+
+    info["body"] = mesh_info(char.body)
+    info["body"]["height_m"] = round(float(hi[1] - lo[1]), 4)
+    if char.skeleton is not None:
+        sk = char.skeleton
+        info["skeleton"] = {"path": sk.path, "joints": sk.n_joints,
+                            "roots": [sk.joint_names[j] for j in np.flatnonzero(sk.parents < 0)]}
+        if char.body.is_skinned:
+            info["body"]["skin_weights"] = skin_weight_stats(char.body, sk.n_joints)
+        info["skeleton"]["joint_names"] = sk.joint_names
+    else:
+        info["skeleton"] = None
+    info["items"] = [mesh_info(m) for m in char.items]
+    anim = [str(p.GetPath()) for p in stage.Traverse() if p.GetTypeName() == "SkelAnimation"]
+    info["animations"] = anim
+    timesampled = 0
+    for p in stage.Traverse():
+        if p.IsA(UsdGeom.Mesh):
+            timesampled += UsdGeom.Mesh(p).GetPointsAttr().GetNumTimeSamples() > 1
+    info["meshes_with_time_sampled_points"] = int(timesampled)
+    return info
+
+
+def describe_bvh(path: Path, scale) -> dict:
+    from ..bvh import read_bvh
+    motion = read_bvh(path, scale=scale)
+    return motion.summary()
+
+
+def format_text(info: dict, all_joints: bool) -> str:
+    lines = [f"{info['file']}"]
+    if info["kind"] == "bvh":
+        for k, v in info.items():
+            if k in ("file", "kind", "joint_names"):
+                continue
+            lines.append(f"  {k}: {v}")
+        names = info.get("joint_names", [])
+        lines.append(f"  joints ({len(names)}): " + (", ".join(names) if all_joints else
+                                                     ", ".join(names[:12]) + (" ..." if len(names) > 12 else "")))
+        return "\n".join(lines)
+    lines.append(f"  up axis {info['up_axis']}, {info['meters_per_unit']} m/unit, "
+                 f"{info['time_codes_per_second']} time codes/s, "
+                 f"time {info['start_time_code']}..{info['end_time_code']}")
+    b = info["body"]
+    lines.append(f"  body {b['path']}: {b['points']} points, {b['polygons']} polygons "
+                 f"({b['triangles']} triangles), height {b['height_m']} m, "
+                 f"{'skinned' if b['skinned'] else 'NOT skinned'}")
+    if "skin_weights" in b:
+        s = b["skin_weights"]
+        lines.append(f"    skin weights: elementSize {s['element_size']}, influences/vertex "
+                     f"max {s['influences_per_vertex_max']} mean {s['influences_per_vertex_mean']}, "
+                     f"{s['joints_with_weights']} joints weighted, {s['joints_without_weights']} unweighted")
+    sk = info["skeleton"]
+    if sk:
+        names = sk["joint_names"]
+        lines.append(f"  skeleton {sk['path']}: {sk['joints']} joints, root {', '.join(sk['roots'])}")
+        lines.append("    joints: " + (", ".join(names) if all_joints else
+                                         ", ".join(names[:12]) + (" ..." if len(names) > 12 else "")))
+    else:
+        lines.append("  skeleton: none")
+    lines.append(f"  items ({len(info['items'])}):")
+    for m in info["items"]:
+        lines.append(f"    {m['name']:<28} {m['points']:>7} points {m['polygons']:>7} polygons"
+                     f"{'  skinned' if m['skinned'] else ''}  {m['path']}")
+    if info["animations"]:
+        lines.append(f"  animations: {', '.join(info['animations'])}")
+    if info["meshes_with_time_sampled_points"]:
+        lines.append(f"  meshes with time-sampled points: {info['meshes_with_time_sampled_points']}")
+    return "\n".join(lines)
+
+
+def run(args) -> int:
+    path = Path(args.file)
+    if not path.exists():
+        raise InputError(path, "file not found")
+    if path.suffix.lower() == ".bvh":
+        info = describe_bvh(path, args.bvh_scale)
+    elif path.suffix.lower() in (".usd", ".usda", ".usdc", ".usdz"):
+        info = describe_usd(path)
+    else:
+        raise InputError(path, "unknown file type (expected .usd, .usda, .usdc, .usdz or .bvh)")
+    if args.json:
+        print(json.dumps(info, indent=2, default=float))
+    else:
+        print(format_text(info, args.joints))
+    return 0
