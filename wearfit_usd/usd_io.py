@@ -91,7 +91,8 @@ def open_stage(path):
 
 def _read_mesh(stage, prim, to_internal, path, time=None) -> Mesh:
     _, _, Usd, UsdGeom, _, _ = _pxr()
-    t = Usd.TimeCode.Default() if time is None else Usd.TimeCode(time)
+    # default: the authored default value, else the earliest time sample
+    t = Usd.TimeCode.EarliestTime() if time is None else Usd.TimeCode(time)
     mesh = UsdGeom.Mesh(prim)
     name = prim.GetName()
     pts_v = mesh.GetPointsAttr().Get(t)
@@ -339,7 +340,8 @@ def _read_skinned_mesh(stage, prim, skinning_query, skeleton: Skeleton, path) ->
     # _read_mesh applied the prim's own xform; UsdSkel ignores it for skinned
     # meshes: bind shape = points @ geomBindTransform in skeleton space.
     from pxr import UsdGeom
-    pts = _np(UsdGeom.Mesh(prim).GetPointsAttr().Get())
+    from pxr import Usd
+    pts = _np(UsdGeom.Mesh(prim).GetPointsAttr().Get(Usd.TimeCode.EarliestTime()))
     gb = _np(skinning_query.GetGeomBindTransform())
     mesh.points = transform_points(pts, gb @ skeleton.skel_to_world)
     ind, w = _read_influences(skinning_query, skeleton, len(pts), path, prim.GetPath())
