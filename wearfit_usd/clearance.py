@@ -113,6 +113,7 @@ class SurfaceQuery:
         _, self._edge_id = np.unique(e, axis=0, return_inverse=True)
         self._edge_id = self._edge_id.reshape(t, 3)
         self._n_edges = int(self._edge_id.max()) + 1
+        self._ring = _vertex_face_ring(self.faces, int(self.faces.max()) + 1 if t else 0)
         self.points = None
         if points is not None:
             self.update(points)
@@ -141,22 +142,20 @@ class SurfaceQuery:
         self.vertex_normal = vn
         self.centroids = tri.mean(axis=1)
         self._ctree = cKDTree(self.centroids)
-        # radius of each triangle around its centroid: bounds the search
-        self.tri_radius = np.linalg.norm(tri - self.centroids[:, None], axis=2).max(axis=1)
-        self._rmax = float(self.tri_radius.max()) if len(self.tri_radius) else 0.0
+        self._vtree = cKDTree(p)
         return self
 
-    def closest(self, query: np.ndarray, k: int = 16, chunk: int = 65536):
+    def closest(self, query: np.ndarray, k: int = 8, chunk: int = 32768):
         """Closest surface points to (M, 3) ``query``.
 
         Returns a dict with ``distance`` (M,) signed (positive outside),
         ``point`` (M, 3), ``triangle`` (M,), ``bary`` (M, 3), ``normal`` (M, 3)
         (pseudo-normal of the closest feature, not unit).
 
-        Candidates are the ``k`` triangles with the nearest centroids; a
-        triangle whose centroid is farther than (best distance + max triangle
-        radius) cannot be closer, so points where that bound is not yet met
-        are re-queried with more candidates.
+        Candidates: the ``k`` triangles with the nearest centroids plus every
+        triangle around the nearest vertex. On body-like meshes this finds the
+        true closest triangle (tested against brute force); it is not a
+        guarantee for meshes with huge, sliver triangles.
         """
         q = np.asarray(query, dtype=np.float64)
         m = len(q)
@@ -173,22 +172,12 @@ class SurfaceQuery:
 
     def _closest_block(self, q, k):
         k = min(k, len(self.faces))
-        cd, ci = self._ctree.query(q, k=k)
+        _, ci = self._ctree.query(q, k=k)
         if k == 1:
-            cd, ci = cd[:, None], ci[:, None]
-        d, cp, bary, feat, tri_idx = self._eval_candidates(q, ci)
-        # a triangle whose centroid lies beyond best + its radius cannot be
-        # closer. Radii vary smoothly on a mesh, so the largest radius among
-        # the candidates stands in for the unseen ones; points that fail the
-        # test are searched again with many more candidates.
-        local_r = self.tri_radius[ci].max(axis=1)
-        need = cd[:, -1] < np.sqrt(d) + local_r
-        if np.any(need) and k < len(self.faces):
-            idx = np.flatnonzero(need)
-            kk = min(len(self.faces), max(4 * k, 64))
-            cd2, ci2 = self._ctree.query(q[idx], k=kk)
-            r = self._eval_candidates(q[idx], ci2)
-            d[idx], cp[idx], bary[idx], feat[idx], tri_idx[idx] = r
+            ci = ci[:, None]
+        _, vi = self._vtree.query(q, k=1)
+        cand = np.concatenate([ci, self._ring[vi]], axis=1)
+        d, cp, bary, feat, tri_idx = self._eval_candidates(q, cand)
         n = self._feature_normal(tri_idx, feat)
         diff = q - cp
         sign = np.where(np.einsum("ij,ij->i", diff, n) < 0, -1.0, 1.0)
@@ -220,6 +209,23 @@ class SurfaceQuery:
     def signed_distance(self, query: np.ndarray) -> np.ndarray:
         """(M,) signed distances, positive outside."""
         return self.closest(query)["distance"]
+
+
+def _vertex_face_ring(faces: np.ndarray, n_vertices: int) -> np.ndarray:
+    """(N, max valence) triangles around each vertex, padded by repeating the
+    first one (an unused vertex gets triangle 0)."""
+    t = len(faces)
+    vt = np.repeat(np.arange(t), 3)
+    vv = faces.ravel()
+    order = np.argsort(vv, kind="stable")
+    vv, vt = vv[order], vt[order]
+    counts = np.bincount(vv, minlength=n_vertices)
+    width = max(int(counts.max()) if len(counts) else 1, 1)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    ring = np.full((n_vertices, width), -1, dtype=np.int64)
+    ring[vv, np.arange(len(vv)) - starts[vv]] = vt
+    ring = np.where(ring < 0, ring[:, :1], ring)
+    return np.where(ring < 0, 0, ring)
 
 
 def signed_distance(body_points: np.ndarray, body_faces: np.ndarray, query: np.ndarray) -> np.ndarray:
