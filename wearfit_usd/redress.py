@@ -1,0 +1,408 @@
+"""Redress: put the items bound on a reference body onto a fitted target body.
+
+Pipeline (internal space, Y up, metres):
+
+1. segment the reference body by skin weights (:mod:`regions`) and give each
+   item vertex the region of its nearest body triangle; item parts that join
+   the two legs directly (skirts, dresses) are bound to the torso instead, so
+   no vertex is pulled by both legs and the skirt cannot tear between them;
+2. bind every item vertex to its ``k`` nearest reference triangles of its
+   region (:func:`binding.bind`, one sparse matrix for all items);
+3. evaluate the binding on the fitted body (reference topology deformed onto
+   the target); small stiff parts (shoes, hat, glasses, watch) instead follow
+   a best-fit similarity transform of their bound body patch;
+4. push item vertices that went inside the target body (but were outside the
+   reference body) back out to their reference clearance, with a light
+   smoothing of the moved vertices and their neighbours (:func:`push_out`).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.spatial import cKDTree
+
+from . import regions as R
+from .binding import Binding, bind, local_signed_distance
+from .clearance import SurfaceQuery
+from .errors import GeometryError, InputError
+from .model import Character, Mesh
+from .progress import debug, warn
+
+FAR_FROM_BODY = 0.5  # m: items farther than this from the body are suspicious
+
+
+# --------------------------------------------------------------------------
+# mesh helpers
+
+def adjacency(faces: np.ndarray, n: int) -> sp.csr_matrix:
+    """(n, n) symmetric 0/1 vertex adjacency of a triangle mesh."""
+    f = np.asarray(faces, dtype=np.int64)
+    i = np.concatenate([f[:, 0], f[:, 1], f[:, 2], f[:, 1], f[:, 2], f[:, 0]])
+    j = np.concatenate([f[:, 1], f[:, 2], f[:, 0], f[:, 0], f[:, 1], f[:, 2]])
+    a = sp.csr_matrix((np.ones(len(i)), (i, j)), shape=(n, n))
+    a.data[:] = 1.0
+    return a
+
+
+def components(faces: np.ndarray, n: int) -> np.ndarray:
+    """(n,) connected-component label of each vertex."""
+    from scipy.sparse.csgraph import connected_components
+    return connected_components(adjacency(faces, n), directed=False)[1]
+
+
+def edges(faces: np.ndarray) -> np.ndarray:
+    """(E, 2) unique undirected edges."""
+    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    return np.unique(np.sort(e, axis=1), axis=0)
+
+
+def similarity_fit(src: np.ndarray, dst: np.ndarray, weights: np.ndarray | None = None,
+                   scale: bool = True):
+    """Best-fit similarity (Umeyama/Kabsch): dst ~ s * src @ rot + t.
+
+    src, dst (P, 3); weights (P,). Returns (s, rot (3, 3) row-vector, t (3,)).
+    """
+    w = np.ones(len(src)) if weights is None else np.asarray(weights, float)
+    w = w / w.sum()
+    ms = w @ src
+    md = w @ dst
+    a = src - ms
+    b = dst - md
+    h = (a * w[:, None]).T @ b
+    u, sv, vt = np.linalg.svd(h)
+    d = np.sign(np.linalg.det(u @ vt))
+    dm = np.array([1.0, 1.0, d])
+    rot = (u * dm) @ vt
+    s = float((sv * dm).sum() / max(w @ np.einsum("ij,ij->i", a, a), 1e-300)) if scale else 1.0
+    return s, rot, md - s * ms @ rot
+
+
+# --------------------------------------------------------------------------
+# penetration
+
+def push_out(body_query: SurfaceQuery, item_points: np.ndarray, min_clearance: np.ndarray,
+             mask: np.ndarray | None = None, neighbours: sp.spmatrix | None = None,
+             smooth: float = 0.5, passes: int = 2):
+    """Push item vertices that are inside the body back out.
+
+    body_query: a :class:`SurfaceQuery` updated to the current body points.
+    item_points: (M, 3). min_clearance: (M,) clearance (m) each vertex must be
+        pushed out to if it is found inside; NaN or <= 0 = leave it (it was
+        inside the reference body too).
+    mask: (M,) bool, the vertices to test (default all): signed distances are
+        only computed there.
+    neighbours: (M, M) sparse adjacency of the item mesh(es); with it the
+        moved vertices and their 1-ring get a light smoothing, and the ring
+        follows part of its moved neighbours' displacement.
+    Returns (points (M, 3), moved (M,) bool). Deterministic, so the same input
+    gives the same output frame after frame.
+    """
+    pts = np.array(item_points, dtype=np.float64, copy=True)
+    m = len(pts)
+    target = np.nan_to_num(np.asarray(min_clearance, dtype=np.float64), nan=-1.0)
+    test = np.ones(m, dtype=bool) if mask is None else np.asarray(mask, bool).copy()
+    test &= target > 0
+    moved = np.zeros(m, dtype=bool)
+    for it in range(passes):
+        idx = np.flatnonzero(test)
+        if len(idx) == 0:
+            break
+        res = body_query.closest(pts[idx])
+        inside = res["distance"] < 0
+        if not inside.any():
+            break
+        sel = idx[inside]
+        n = res["normal"][inside]
+        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+        new = res["point"][inside] + n * target[sel, None]
+        delta = np.zeros_like(pts)
+        delta[sel] = new - pts[sel]
+        pts[sel] = new
+        moved[sel] = True
+        if neighbours is not None and it == 0 and smooth > 0:
+            a = neighbours.tocsr()
+            hit = np.zeros(m)
+            hit[sel] = 1.0
+            ring = (a @ hit > 0) & ~moved
+            deg = np.asarray(a.sum(axis=1)).ravel()
+            deg = np.maximum(deg, 1.0)
+            # the 1-ring follows the mean displacement of its neighbours
+            follow = (a @ delta) / deg[:, None]
+            pts[ring] += smooth * follow[ring]
+            # light Laplacian smoothing of moved + ring vertices
+            zone = moved | ring
+            avg = (a @ pts) / deg[:, None]
+            pts[zone] += 0.5 * smooth * (avg[zone] - pts[zone])
+            moved |= ring
+            # smoothing may pull a few back in: test the zone again
+            test = zone & (target > 0)
+        else:
+            test = np.zeros(m, dtype=bool)
+            test[sel] = True
+    return pts, moved
+
+
+# --------------------------------------------------------------------------
+# body fit
+
+def fitted_body_points(ref: Character, target: Character) -> np.ndarray:
+    """The reference body topology deformed onto the target (N_ref, 3)."""
+    try:
+        from .body_fit import fit_character
+    except ImportError:
+        fit_character = None
+    if fit_character is not None:
+        return np.asarray(fit_character(ref, target).points, dtype=np.float64)
+    # TEMPORARY fallback until body_fit.py lands: same-topology targets only
+    if target.body.n_points == ref.body.n_points and np.array_equal(target.body.faces, ref.body.faces):
+        return target.body.points.copy()
+    raise InputError(target.source, "body has another topology than the reference "
+                                    f"({target.body.n_points} vs {ref.body.n_points} points): "
+                                    "needs body fitting (wearfit_usd.body_fit), not available")
+
+
+# --------------------------------------------------------------------------
+# dressing
+
+@dataclass
+class DressPlan:
+    """Everything topology-dependent, built once on the reference body.
+
+    binding: one :class:`Binding` for all item vertices (stacked in item order).
+    offsets: (n_items + 1,) start of each item's rows.
+    ref_clearance: (M,) signed clearance on the reference body.
+    labels: (M,) body region each vertex is bound to.
+    rigid_groups: list of (vertex indices (P,), body vertex indices (Q,),
+        body vertex weights (Q,)) moved by one similarity transform.
+    neighbours: (M, M) item adjacency (all items, block diagonal).
+    """
+    items: list[Mesh]
+    binding: Binding
+    offsets: np.ndarray
+    ref_points: np.ndarray
+    ref_clearance: np.ndarray
+    labels: np.ndarray
+    tri_labels: np.ndarray
+    body_labels: np.ndarray
+    ref_body: np.ndarray | None = None
+    rigid_groups: list = field(default_factory=list)
+    rigid_items: list = field(default_factory=list)
+    skirt_items: list = field(default_factory=list)
+    neighbours: sp.csr_matrix | None = None
+    timings: dict = field(default_factory=dict)
+
+    def item_slices(self):
+        return [slice(int(a), int(b)) for a, b in zip(self.offsets[:-1], self.offsets[1:])]
+
+
+def item_labels(ref_body: Mesh, body_labels: np.ndarray, tri_labels: np.ndarray, items: list[Mesh], points: np.ndarray,
+                offsets: np.ndarray, centroid_tree: cKDTree):
+    """Region per item vertex (of its nearest triangle), with skirt-like item
+    parts (item edges joining a left-leg vertex to a right-leg vertex) moved
+    to the torso. Returns (labels (M,), names of items treated as skirts)."""
+    _, near = centroid_tree.query(points, k=1)
+    labels = tri_labels[near].copy()
+    torso = body_labels == R.TORSO
+    crotch_y = float(ref_body.points[torso, 1].min()) if torso.any() else -np.inf
+    skirts = []
+    for item, a, b in zip(items, offsets[:-1], offsets[1:]):
+        lab = labels[a:b]
+        comp = components(item.faces, item.n_points)
+        e = edges(item.faces)
+        la, lb = lab[e[:, 0]], lab[e[:, 1]]
+        cross = ((la == R.LEFT_LEG) & (lb == R.RIGHT_LEG)) | ((la == R.RIGHT_LEG) & (lb == R.LEFT_LEG))
+        if not cross.any():
+            continue
+        # trousers touch left and right leg only at the crotch; a skirt joins
+        # them all the way down to its hem: count joining edges clearly below
+        # the crotch (the lowest torso-region body vertex)
+        ymid = 0.5 * (points[a + e[cross, 0], 1] + points[a + e[cross, 1], 1])
+        low = ymid < crotch_y - 0.08
+        n_cross = np.bincount(comp[e[cross, 0]][low], minlength=comp.max() + 1)
+        bridged = np.flatnonzero(n_cross >= 3)
+        if len(bridged) == 0:
+            continue
+        sel = np.isin(comp, bridged) & ((lab == R.LEFT_LEG) | (lab == R.RIGHT_LEG))
+        lab[sel] = R.TORSO
+        labels[a:b] = lab
+        skirts.append(item.name)
+    return labels, skirts
+
+
+def _auto_rigid(item: Mesh, ref_clear: np.ndarray, lab: np.ndarray, comp: np.ndarray,
+                max_size: float, min_clearance: float, max_vertices: int):
+    """Vertex groups (lists of local indices) of an item that should move
+    rigidly: small (bounding-box diagonal <= max_size), not skin-tight
+    (median clearance >= min_clearance) parts lying in one body region."""
+    groups = []
+    for region in np.unique(lab):
+        sel = lab == region
+        # whole components only: a component split across regions stays free
+        comps = np.unique(comp[sel])
+        whole = [c for c in comps if np.all(lab[comp == c] == region)]
+        if not whole:
+            continue
+        v = np.flatnonzero(np.isin(comp, whole))
+        pts = item.points[v]
+        size = float(np.linalg.norm(pts.max(0) - pts.min(0)))
+        if (len(v) <= max_vertices and size <= max_size
+                and float(np.median(ref_clear[v])) >= min_clearance):
+            groups.append(v)
+    return groups
+
+
+def plan(ref: Character, k: int = 5, use_regions: bool = True, rigid="auto",
+         rigid_max_size: float = 0.4, rigid_min_clearance: float = 0.004,
+         rigid_max_vertices: int = 4000, far: float = FAR_FROM_BODY,
+         strict_far: bool = False) -> DressPlan:
+    """Bind every item of ``ref`` to its body (done once per reference).
+
+    rigid: "auto" (small stiff parts, see :func:`_auto_rigid`), "none", or a
+        list of item names moved rigidly as a whole (per body region).
+    """
+    t0 = time.perf_counter()
+    items = list(ref.items)
+    if not items:
+        raise InputError(ref.source, "the reference holds no wearable items (no Mesh besides the body)")
+    body = ref.body
+    offsets = np.concatenate([[0], np.cumsum([m.n_points for m in items])])
+    pts = np.concatenate([m.points for m in items])
+    tri = body.points[body.faces]
+    area2 = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    degenerate = area2 <= 1e-10 * max(float(np.median(area2)), 1e-300)
+    if degenerate.all():
+        raise GeometryError(ref.source, "every body triangle is degenerate (zero area)")
+    if degenerate.any():
+        warn(f"{ref.source}: {int(degenerate.sum())} degenerate body triangles are not used for binding")
+    centroids = tri.mean(axis=1)
+    good = np.flatnonzero(~degenerate)
+    tree = cKDTree(centroids[good])
+
+    if use_regions and ref.skeleton is not None and body.joint_indices is not None:
+        body_labels = R.vertex_regions(body, ref.skeleton)
+    else:
+        body_labels = np.zeros(body.n_points, dtype=np.int64)
+    tri_labels = R.triangle_regions(body.faces, body_labels)
+    tri_labels_good = tri_labels[good]
+    labels, skirts = item_labels(body, body_labels, tri_labels_good, items, pts, offsets, tree)
+    t1 = time.perf_counter()
+    mask_labels = np.where(degenerate, -1, tri_labels)
+    binding = bind(body.points, body.faces, pts, k=k, candidate_mask=(mask_labels, labels))
+    t2 = time.perf_counter()
+    ref_clear, _ = local_signed_distance(binding, body.points, pts)
+    far_mask = ref_clear > far
+    if far_mask.any():
+        names = [m.name for m, a, b in zip(items, offsets[:-1], offsets[1:]) if far_mask[a:b].any()]
+        msg = (f"{int(far_mask.sum())} item vertices are more than {far} m from the body "
+               f"(items: {', '.join(names)}): they are carried along rigidly with distant body parts")
+        if strict_far:
+            raise GeometryError(ref.source, msg)
+        warn(f"{ref.source}: {msg}")
+
+    rigid_groups, rigid_items = [], []
+    blocks = []
+    for i, (item, a, b) in enumerate(zip(items, offsets[:-1], offsets[1:])):
+        blocks.append(adjacency(item.faces, item.n_points))
+        if rigid == "none" or rigid is None:
+            continue
+        comp = components(item.faces, item.n_points)
+        lab = labels[a:b]
+        if rigid == "auto":
+            groups = _auto_rigid(item, ref_clear[a:b], lab, comp, rigid_max_size,
+                                 rigid_min_clearance, rigid_max_vertices)
+        elif item.name in rigid:
+            groups = [np.flatnonzero(lab == r) for r in np.unique(lab)]
+        else:
+            groups = []
+        for v in groups:
+            gv = v + a
+            # the bound patch: body vertices of the triangles these vertices use,
+            # weighted by how much they are used
+            tri_w = binding.weights[gv]
+            corner = body.faces[binding.triangles[gv]]  # (P, k, 3)
+            bw = np.bincount(corner.ravel(), weights=np.repeat(tri_w.ravel(), 3),
+                             minlength=body.n_points)
+            bv = np.flatnonzero(bw > 0)
+            rigid_groups.append((gv, bv, bw[bv]))
+        if groups:
+            rigid_items.append(item.name)
+    neighbours = sp.block_diag(blocks, format="csr")
+    t3 = time.perf_counter()
+    return DressPlan(items=items, binding=binding, offsets=offsets, ref_points=pts,
+                     ref_clearance=ref_clear, labels=labels, tri_labels=tri_labels,
+                     body_labels=body_labels, rigid_groups=rigid_groups,
+                     rigid_items=rigid_items, skirt_items=skirts, neighbours=neighbours,
+                     ref_body=body.points,
+                     timings={"regions_s": t1 - t0, "bind_s": t2 - t1, "plan_rest_s": t3 - t2})
+
+
+@dataclass
+class DressResult:
+    items: list[Mesh]          # redressed items (internal space), names/topology as the reference
+    points: np.ndarray         # (M, 3) all item points stacked
+    free_points: np.ndarray    # (M, 3) binding result before rigid parts and push-out
+    moved: np.ndarray          # (M,) bool: changed by the penetration pass
+    plan: DressPlan
+    body_points: np.ndarray    # the fitted body (reference topology)
+    timings: dict
+
+
+def apply(plan_: DressPlan, body_points: np.ndarray, body_faces: np.ndarray,
+          penetration: bool = True, query: SurfaceQuery | None = None, margin: float = 0.003,
+          near_other: float = 0.03):
+    """Evaluate a plan on fitted body points (reference topology).
+
+    Returns (points (M, 3), free points (M, 3), moved (M,) bool, timings).
+    """
+    t0 = time.perf_counter()
+    free = plan_.binding.evaluate(body_points)
+    pts = free.copy()
+    for gv, bv, bw in plan_.rigid_groups:
+        s, rot, t = similarity_fit(plan_.ref_body[bv], body_points[bv], bw)
+        pts[gv] = s * plan_.ref_points[gv] @ rot + t
+    t1 = time.perf_counter()
+    moved = np.zeros(len(pts), dtype=bool)
+    if penetration:
+        if query is None:
+            query = SurfaceQuery(body_faces, body_points)
+        # cheap local test against the vertex's own bound triangles: only
+        # vertices close to (or inside) them, or close to another body
+        # region (a posed limb pressing into the torso...), get the exact
+        # signed-distance query
+        d_loc, _ = local_signed_distance(plan_.binding, body_points, pts)
+        cand = d_loc < margin
+        dn, vn = cKDTree(body_points).query(pts, k=1)
+        cand |= (plan_.body_labels[vn] != plan_.labels) & (dn < near_other)
+        target = np.where(plan_.ref_clearance > 0, plan_.ref_clearance, np.nan)
+        debug(f"penetration pass: {int(cand.sum())} of {len(cand)} vertices tested")
+        pts, moved = push_out(query, pts, target, mask=cand, neighbours=plan_.neighbours)
+    t2 = time.perf_counter()
+    return pts, free, moved, {"evaluate_s": t1 - t0, "penetration_s": t2 - t1}
+
+
+def dress(ref: Character, target: Character, k: int = 5, use_regions: bool = True,
+          rigid="auto", penetration: bool = True, body_points: np.ndarray | None = None,
+          strict_far: bool = False) -> DressResult:
+    """Put every item of ``ref`` on ``target``'s body (internal space)."""
+    tb = time.perf_counter()
+    if body_points is None:
+        body_points = fitted_body_points(ref, target)
+    t_fit = time.perf_counter() - tb
+    p = plan(ref, k=k, use_regions=use_regions, rigid=rigid, strict_far=strict_far)
+    pts, free, moved, tm = apply(p, body_points, ref.body.faces, penetration=penetration)
+    timings = {"body_fit_s": t_fit, **p.timings, **tm}
+    keep_weights = (target.skeleton is not None and ref.skeleton is not None
+                    and target.skeleton.joint_names == ref.skeleton.joint_names)
+    out = []
+    for item, sl in zip(p.items, p.item_slices()):
+        m = item.copy_with_points(pts[sl])
+        if not keep_weights:  # influences index the reference skeleton's joints
+            m.joint_indices = None
+            m.joint_weights = None
+        out.append(m)
+    debug(f"dress timings: {timings}")
+    return DressResult(items=out, points=pts, free_points=free, moved=moved, plan=p,
+                       body_points=body_points, timings=timings)

@@ -1,0 +1,106 @@
+"""Body segmentation by skin weights: left/right leg, left/right arm, head, torso.
+
+Joint names differ between rigs (``thigh_l`` vs ``LeftUpLeg``), so the limbs
+are found from the skeleton's hierarchy and bind-pose geometry instead:
+
+* the two feet are the lowest joints on each side (x > 0 is the character's
+  left); a leg is the subtree, below the common ancestor of both feet, that
+  holds that foot;
+* the two hands are the joints farthest out along x on each side, the arms
+  are found the same way below the hands' common ancestor;
+* the head is the subtree (below the common ancestor of head top and a hand)
+  holding the highest joint;
+* every other joint is torso.
+
+A body vertex belongs to the region whose joints carry most of its skin
+weight. Internal space: Y up, metres.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+TORSO, LEFT_LEG, RIGHT_LEG, LEFT_ARM, RIGHT_ARM, HEAD = range(6)
+REGION_NAMES = ["torso", "left_leg", "right_leg", "left_arm", "right_arm", "head"]
+N_REGIONS = len(REGION_NAMES)
+
+
+def _ancestors(parents: np.ndarray, j: int) -> list[int]:
+    out = [j]
+    while parents[out[-1]] >= 0:
+        out.append(int(parents[out[-1]]))
+    return out
+
+
+def _branch(parents: np.ndarray, a: int, b: int) -> int:
+    """Child of the lowest common ancestor of joints a and b that leads to a
+    (the root of a's branch), or a itself when b lies above a."""
+    anc_b = set(_ancestors(parents, b))
+    path = _ancestors(parents, a)
+    for i, j in enumerate(path):
+        if j in anc_b:
+            return path[i - 1] if i > 0 else a
+    return path[-1]
+
+
+def _subtree(parents: np.ndarray, root: int) -> np.ndarray:
+    inside = np.zeros(len(parents), dtype=bool)
+    inside[root] = True
+    for j in range(len(parents)):  # parents[j] < j: one ordered sweep
+        if parents[j] >= 0 and inside[parents[j]]:
+            inside[j] = True
+    return inside
+
+
+def joint_regions(skeleton) -> np.ndarray:
+    """(J,) region label of every joint (TORSO, LEFT_LEG, ... HEAD).
+
+    Uses the bind pose: works for A-, T- or other standing poses with the
+    usual conventions (Y up, character's left on +x).
+    """
+    parents = np.asarray(skeleton.parents)
+    pos = skeleton.bind_positions()
+    j = len(parents)
+    labels = np.full(j, TORSO, dtype=np.int64)
+    if j < 5:
+        return labels
+    x, y = pos[:, 0], pos[:, 1]
+    left, right = x > 1e-4, x < -1e-4
+    if not left.any() or not right.any():
+        return labels
+    lfoot = int(np.flatnonzero(left)[np.argmin(y[left])])
+    rfoot = int(np.flatnonzero(right)[np.argmin(y[right])])
+    lhand = int(np.flatnonzero(left)[np.argmax(x[left])])
+    rhand = int(np.flatnonzero(right)[np.argmin(x[right])])
+    top = int(np.argmax(y))
+    for joint, other, lab in ((lfoot, rfoot, LEFT_LEG), (rfoot, lfoot, RIGHT_LEG),
+                              (lhand, rhand, LEFT_ARM), (rhand, lhand, RIGHT_ARM)):
+        root = _branch(parents, joint, other)
+        sub = _subtree(parents, root)
+        labels[sub & (labels == TORSO)] = lab
+    if labels[top] == TORSO:
+        root = _branch(parents, top, lhand)
+        sub = _subtree(parents, root)
+        labels[sub & (labels == TORSO)] = HEAD
+    return labels
+
+
+def vertex_regions(mesh, skeleton) -> np.ndarray:
+    """(N,) region of every vertex of a skinned mesh: the region whose joints
+    hold the largest share of its skin weight."""
+    if mesh.joint_indices is None or skeleton is None:
+        raise ValueError(f"mesh {mesh.name} has no skin weights: cannot segment it")
+    jl = joint_regions(skeleton)
+    n = mesh.n_points
+    acc = np.zeros((n, N_REGIONS))
+    lab = jl[mesh.joint_indices]  # (N, K)
+    rows = np.repeat(np.arange(n), lab.shape[1])
+    np.add.at(acc, (rows, lab.ravel()), mesh.joint_weights.ravel())
+    return np.argmax(acc, axis=1)
+
+
+def triangle_regions(faces: np.ndarray, vertex_labels: np.ndarray) -> np.ndarray:
+    """(T,) region of each triangle: the majority label of its 3 vertices
+    (ties: the first vertex's)."""
+    lab = vertex_labels[faces]
+    a, b, c = lab[:, 0], lab[:, 1], lab[:, 2]
+    return np.where((b == c) & (a != b), b, a)
