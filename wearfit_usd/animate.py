@@ -164,8 +164,7 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
     t0 = time.perf_counter()
     body0 = skin_points(body.points, body.joint_indices, body.joint_weights, skin_mats[0])
     if opt.mode == "lbs":
-        items_rest, dress_report = dress_items(reference, target, target.body.points,
-                                               target.skeleton, k=opt.k)
+        items_rest, dress_timings = dress_items(reference, target, k=opt.k)
     else:
         ref_rt = retarget(motion, reference.skeleton, mapping=opt.mapping, start=opt.start,
                           end=min(opt.start + 1, motion.n_frames) if opt.end is None else opt.start + 1,
@@ -176,18 +175,19 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
         ref_body0 = skin_points(reference.body.points, reference.body.joint_indices,
                                 reference.body.joint_weights,
                                 skinning_matrices(reference.skeleton.bind_world, ref_world0))
-        # the reference items follow their body into frame 0's pose
-        from .binding import bind
-        ref_items0 = []
-        for item in reference.items:
-            b = bind(reference.body.points, reference.body.faces, item.points, k=opt.k)
-            ref_items0.append(item.copy_with_points(b.evaluate(ref_body0)))
+        # the reference items follow their body into frame 0's pose (the
+        # region-aware binding of the reference, without push-out)
+        from .redress import apply as apply_plan, plan as plan_dress
+        ref_plan = plan_dress(reference, k=opt.k)
+        posed_pts, _, _, _ = apply_plan(ref_plan, ref_body0, reference.body.faces, penetration=False)
+        ref_items0 = [m.copy_with_points(posed_pts[sl])
+                      for m, sl in zip(ref_plan.items, ref_plan.item_slices())]
         posed_ref = replace(reference, body=reference.body.copy_with_points(ref_body0),
                             skeleton=ref_posed, items=ref_items0)
         posed_target = replace(target, body=target.body.copy_with_points(body0), skeleton=target_posed)
-        items_rest, dress_report = dress_items(posed_ref, posed_target, body0, target_posed, k=opt.k)
+        items_rest, dress_timings = dress_items(posed_ref, posed_target, k=opt.k)
     rep.timings["dress_frame0"] = time.perf_counter() - t0
-    rep.items = {name: r for name, r in dress_report.items()} if isinstance(dress_report, dict) else {}
+    rep.timings["dress_detail"] = dress_timings
 
     # 4. per-frame evaluation ---------------------------------------------------
     t0 = time.perf_counter()
@@ -277,13 +277,10 @@ class _LBSEvaluator:
         return skin_points(self.points, self.ji, self.jw, self.mats[f])
 
 
-def dress_items(reference: Character, target: Character, target_body_points, target_skeleton, k=5):
-    """Fit the reference body onto the target body and redress the items.
-
-    Returns (list of item Mesh in internal space on the target, per-item
-    report dict). Thin adapter over :mod:`body_fit` and :mod:`redress`.
-    """
-    from .body_fit import fit_character
-    from .redress import redress_character
-    fit = fit_character(reference, target)
-    return redress_character(reference, target, fit.points, k=k)
+def dress_items(reference: Character, target: Character, k: int = 5):
+    """Fit the reference body onto the target body and redress the items
+    (:func:`redress.dress`). Returns (items on the target in internal space,
+    timings dict)."""
+    from .redress import dress
+    res = dress(reference, target, k=k)
+    return res.items, res.timings

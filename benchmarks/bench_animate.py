@@ -1,0 +1,151 @@
+"""Dynamic try-on benchmark: `wearfit animate` on CMU clips, K-triangle binding
+vs the LBS baseline (skin weights copied to the items) in the same run.
+
+Per clip and body: frames, USD validation, body (our LBS) vs UsdSkel on the
+written file, worst-frame new penetration, temporal jitter, timings (binding
+evaluation, LBS and USD writing in frames/s) and the whole command's time.
+Also a micro-benchmark of one binding evaluation for all items of
+ref_male.usda on one core.
+
+Run alone: ``python3 benchmarks/bench_animate.py [--full]``.
+"""
+from __future__ import annotations
+
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+if __package__ in (None, ""):
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from benchmarks import BVH_DIR, DEFAULT_OUT, USD_DIR, format_table  # noqa: E402
+
+QUICK = [("cmu_07_01_walk.bvh", "ref_male.usda", "body_male_heavy.usdc")]
+FULL_CLIPS = sorted(p.name for p in BVH_DIR.glob("cmu*.bvh")) if BVH_DIR.exists() else []
+FULL = [(c, "ref_male.usda", "body_male_heavy.usdc") for c in FULL_CLIPS] + \
+       [(c, "ref_female.usda", "body_female_heavy.usdc") for c in FULL_CLIPS]
+
+
+def _read_back(shot: Path, frames: list[int]):
+    """Item points (F, M, 3) and body points (F, N, 3) in stage space, body
+    via UsdSkel (the ground truth) at the given frames."""
+    from pxr import Usd, UsdGeom
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    from tests.usdskel_reference import usdskel_skinned_points
+    stage = Usd.Stage.Open(str(shot))
+    items = [p for p in stage.GetPrimAtPath("/Root/Items").GetChildren() if p.IsA(UsdGeom.Mesh)]
+    it = np.stack([np.concatenate([np.array(UsdGeom.Mesh(p).GetPointsAttr().Get(f)) for p in items])
+                   for f in frames])
+    body = np.stack([usdskel_skinned_points(stage, "/Root/Character/Body", f) for f in frames])
+    return stage, it, body
+
+
+def jitter(points: np.ndarray) -> float:
+    """Mean norm of the second difference over frames, (F, M, 3) -> float."""
+    if len(points) < 3:
+        return 0.0
+    return float(np.linalg.norm(points[2:] - 2 * points[1:-1] + points[:-2], axis=2).mean())
+
+
+def binding_microbench(repeat: int = 200) -> dict:
+    """One binding evaluation (all items of ref_male.usda) and one LBS of the
+    body, timed on one core; the LBS-baseline per-frame cost in the same run."""
+    from wearfit_usd.binding import bind
+    from wearfit_usd.skinning import skin_points, skinning_matrices
+    from wearfit_usd.skin_transfer import transfer_weights
+    from wearfit_usd.usd_io import read_character
+    ref = read_character(USD_DIR / "ref_male.usda")
+    items = np.concatenate([m.points for m in ref.items])
+    b = bind(ref.body.points, ref.body.faces, items, k=5)
+    body = ref.body.points * 1.01
+    b.evaluate(body)
+    t = time.perf_counter()
+    for _ in range(repeat):
+        b.evaluate(body)
+    t_eval = (time.perf_counter() - t) / repeat
+    skel = ref.skeleton
+    mats = skinning_matrices(skel.bind_world, skel.bind_world)
+    ji, jw = transfer_weights(ref.body.points, ref.body.faces, ref.body.joint_indices,
+                              ref.body.joint_weights, items, skel.n_joints)
+    t = time.perf_counter()
+    for _ in range(repeat // 4):
+        skin_points(items, ji, jw, mats)
+    t_lbs_items = (time.perf_counter() - t) / (repeat // 4)
+    t = time.perf_counter()
+    for _ in range(repeat // 4):
+        skin_points(ref.body.points, ref.body.joint_indices, ref.body.joint_weights, mats)
+    t_lbs_body = (time.perf_counter() - t) / (repeat // 4)
+    return {"case": "microbench ref_male items", "item_vertices": int(len(items)),
+            "bind_eval_us": 1e6 * t_eval, "bind_eval_fps": 1 / t_eval,
+            "lbs_items_us": 1e6 * t_lbs_items, "lbs_items_fps": 1 / t_lbs_items,
+            "lbs_body_fps": 1 / t_lbs_body,
+            "eval_vs_lbs_items": t_lbs_items / t_eval}
+
+
+def run_case(clip: str, ref_name: str, body_name: str, out_dir: Path, mode: str, every: int) -> dict:
+    from wearfit_usd.animate import AnimateOptions, animate
+    from wearfit_usd.bvh import read_bvh
+    from wearfit_usd.transforms import transform_points
+    from wearfit_usd.usd_io import read_character
+    from wearfit_usd.usd_validate import validate_stage
+    from wearfit_usd.progress import set_verbosity
+    set_verbosity(0)
+    t0 = time.perf_counter()
+    ref = read_character(USD_DIR / ref_name)
+    tgt = read_character(USD_DIR / body_name)
+    motion = read_bvh(BVH_DIR / clip)
+    shot = out_dir / f"animate_{Path(clip).stem}_{Path(body_name).stem}_{mode}.usdc"
+    rep = animate(ref, tgt, motion, shot, AnimateOptions(start=1, fps=30, mode=mode, measure_every=every))
+    total = time.perf_counter() - t0
+    expected = int(np.floor((motion.n_frames - 2) / motion.fps * 30 + 1e-9)) + 1
+    sample = sorted(set([0, rep.frames // 2, rep.frames - 1]))
+    stage, items, body = _read_back(shot, list(range(rep.frames)))
+    ours = read_character(shot)
+    # our LBS of the written file vs UsdSkel's
+    from wearfit_usd.skinning import skin_mesh
+    from wearfit_usd.retarget import retarget
+    errs = []
+    from pxr import UsdSkel, Usd
+    anim = UsdSkel.Animation(stage.GetPrimAtPath("/Root/Character/Animation"))
+    for f in sample:
+        q = UsdSkel.Cache()
+        root = UsdSkel.Root(stage.GetPrimAtPath("/Root/Character"))
+        q.Populate(root, Usd.PrimDefaultPredicate)
+        sq = q.GetSkelQuery(UsdSkel.Skeleton(stage.GetPrimAtPath("/Root/Character/Skeleton")))
+        local = np.array(sq.ComputeJointLocalTransforms(f))
+        mine = skin_mesh(ours.body, ours.skeleton, ours.skeleton.world_from_local(local))
+        ref_pts = transform_points(body[f], ours.to_internal)
+        errs.append(float(np.abs(mine - ref_pts).max() / np.abs(ref_pts).max()))
+    problems = validate_stage(stage)
+    jit_items = jitter(items)
+    jit_body = jitter(body)
+    t = rep.timings
+    return {"clip": clip, "body": body_name, "mode": mode, "frames": rep.frames,
+            "frames_expected": expected, "valid": len(problems) == 0,
+            "lbs_vs_usdskel_rel": max(errs),
+            "worst_frame_pen_pct": 100 * rep.worst_frame_penetration,
+            "jitter_ratio": jit_items / max(jit_body, 1e-12),
+            "eval_fps": t["evaluate_fps"], "lbs_fps": t["lbs_fps"], "write_fps": t["write_fps"],
+            "animate_s": t["total"], "with_io_s": total}
+
+
+def run(full: bool, out_dir: Path) -> list[dict]:
+    out_dir.mkdir(parents=True, exist_ok=True)
+    rows = [binding_microbench()]
+    cases = FULL if full else QUICK
+    every = 1 if full else 2
+    for clip, ref, body in cases:
+        for mode in ("bind", "lbs"):
+            rows.append(run_case(clip, ref, body, out_dir, mode, every))
+    return rows
+
+
+if __name__ == "__main__":
+    full = "--full" in sys.argv
+    out = DEFAULT_OUT
+    rows = run(full, out)
+    print(format_table(rows))
+    (out / "animate.json").write_text(json.dumps(rows, indent=2, default=float))
