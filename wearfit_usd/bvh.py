@@ -150,7 +150,11 @@ class BVHMotion:
 
     @property
     def fps(self) -> float:
-        return 1.0 / self.frame_time
+        """1 / frame_time, snapped to the nearest integer rate when the file
+        rounded it (``.0083333`` -> 120, ``0.041667`` -> 24)."""
+        f = 1.0 / self.frame_time
+        r = round(f)
+        return float(r) if r > 0 and abs(f - r) < 2e-4 * f else f
 
     @property
     def n_joints(self) -> int:
