@@ -225,8 +225,8 @@ def item_labels(ref_body: Mesh, body_labels: np.ndarray, tri_labels: np.ndarray,
         bridged = np.flatnonzero(n_cross >= 3)
         if len(bridged) == 0:
             continue
-        sel = np.isin(comp, bridged) & ((lab == R.LEFT_LEG) | (lab == R.RIGHT_LEG))
-        lab[sel] = R.TORSO
+        sel = np.isin(comp, bridged) & ((lab == R.LEFT_LEG) | (lab == R.RIGHT_LEG) | (lab == R.TORSO))
+        lab[sel] = R.HIPS
         labels[a:b] = lab
         skirts.append(item.name)
     return labels, skirts
@@ -282,15 +282,26 @@ def plan(ref: Character, k: int = 5, use_regions: bool = True, rigid="auto",
     tree = cKDTree(centroids[good])
 
     if use_regions and ref.skeleton is not None and body.joint_indices is not None:
-        body_labels = R.vertex_regions(body, ref.skeleton)
+        shares = R.region_shares(body, ref.skeleton)
+        body_labels = np.argmax(shares, axis=1)
+        leg_share = shares[:, R.LEFT_LEG] + shares[:, R.RIGHT_LEG]
     else:
         body_labels = np.zeros(body.n_points, dtype=np.int64)
+        leg_share = np.zeros(body.n_points)
     tri_labels = R.triangle_regions(body.faces, body_labels)
-    tri_labels_good = tri_labels[good]
-    labels, skirts = item_labels(body, body_labels, tri_labels_good, items, pts, offsets, tree)
+    labels, skirts = item_labels(body, body_labels, tri_labels[good], items, pts, offsets, tree)
     t1 = time.perf_counter()
-    mask_labels = np.where(degenerate, -1, tri_labels)
-    binding = bind(body.points, body.faces, pts, k=k, candidate_mask=(mask_labels, labels))
+    # skirt parts hang from the hips: they may only use torso triangles that
+    # the legs do not move (no leg skin weight), so spreading the legs
+    # neither tears nor swings them; the push-out pass then keeps the legs inside
+    hips = (tri_labels == R.TORSO) & (leg_share[body.faces].max(axis=1) < 0.02)
+    mask_labels = np.where(hips & np.isin(R.HIPS, labels), R.HIPS, tri_labels)
+    mask_labels = np.where(degenerate, -1, mask_labels)
+    allowed = np.zeros((len(pts), R.N_REGIONS + 1), dtype=bool)
+    allowed[np.arange(len(pts)), np.where(labels == R.HIPS, R.HIPS, labels)] = True
+    allowed[:, R.HIPS] |= labels == R.TORSO  # torso vertices may still use hip triangles
+    binding = bind(body.points, body.faces, pts, k=k, candidate_mask=(mask_labels, allowed))
+    labels = np.where(labels == R.HIPS, R.TORSO, labels)
     t2 = time.perf_counter()
     ref_clear, _ = local_signed_distance(binding, body.points, pts)
     far_mask = ref_clear > far

@@ -20,6 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 TORSO, LEFT_LEG, RIGHT_LEG, LEFT_ARM, RIGHT_ARM, HEAD = range(6)
+HIPS = 6  # torso triangles without leg weights (binding label for skirts, not a segment)
 REGION_NAMES = ["torso", "left_leg", "right_leg", "left_arm", "right_arm", "head"]
 N_REGIONS = len(REGION_NAMES)
 
@@ -84,9 +85,8 @@ def joint_regions(skeleton) -> np.ndarray:
     return labels
 
 
-def vertex_regions(mesh, skeleton) -> np.ndarray:
-    """(N,) region of every vertex of a skinned mesh: the region whose joints
-    hold the largest share of its skin weight."""
+def region_shares(mesh, skeleton) -> np.ndarray:
+    """(N, N_REGIONS) share of each vertex's skin weight held by each region."""
     if mesh.joint_indices is None or skeleton is None:
         raise ValueError(f"mesh {mesh.name} has no skin weights: cannot segment it")
     jl = joint_regions(skeleton)
@@ -95,7 +95,13 @@ def vertex_regions(mesh, skeleton) -> np.ndarray:
     lab = jl[mesh.joint_indices]  # (N, K)
     rows = np.repeat(np.arange(n), lab.shape[1])
     np.add.at(acc, (rows, lab.ravel()), mesh.joint_weights.ravel())
-    return np.argmax(acc, axis=1)
+    return acc
+
+
+def vertex_regions(mesh, skeleton) -> np.ndarray:
+    """(N,) region of every vertex of a skinned mesh: the region whose joints
+    hold the largest share of its skin weight."""
+    return np.argmax(region_shares(mesh, skeleton), axis=1)
 
 
 def triangle_regions(faces: np.ndarray, vertex_labels: np.ndarray) -> np.ndarray:

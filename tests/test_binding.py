@@ -1,0 +1,84 @@
+"""Binding: exact on the reference, rigid motions, clearance kept on a deformed sphere."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from wearfit_usd.binding import bind
+from wearfit_usd.clearance import SurfaceQuery
+from wearfit_usd.transforms import matrix_from_quat, quat_normalize
+
+
+def _sphere(radius, subdiv=4):
+    s = trimesh.creation.icosphere(subdivisions=subdiv, radius=radius)
+    return np.asarray(s.vertices, float), np.asarray(s.faces, np.int64)
+
+
+def test_reproduces_reference_items_exactly(ref_male):
+    pts = np.concatenate([m.points for m in ref_male.items])
+    b = bind(ref_male.body.points, ref_male.body.faces, pts, k=5)
+    assert b.matrix.shape == (len(pts), ref_male.body.n_points + len(ref_male.body.faces))
+    assert np.abs(b.evaluate(ref_male.body.points) - pts).max() < 1e-6
+    # the documented formulation: one product over [body; v1 + unit normal]
+    assert np.abs(b.matrix @ b.stacked(ref_male.body.points) - pts).max() < 1e-6
+    np.testing.assert_allclose(b.weights.sum(axis=1), 1.0, atol=1e-12)
+
+
+def test_rigid_body_motion_moves_item_rigidly(ref_male):
+    item = ref_male.item("shoes01").points
+    body = ref_male.body.points
+    b = bind(body, ref_male.body.faces, item, k=5)
+    rot = matrix_from_quat(quat_normalize(np.array([0.9, 0.2, -0.3, 0.25])))
+    t = np.array([0.3, -1.2, 0.7])
+    got = b.evaluate(body @ rot + t)
+    np.testing.assert_allclose(got, item @ rot + t, atol=1e-9)
+
+
+def test_batch_evaluate_equals_single(ref_male):
+    item = ref_male.item("fedora01").points
+    body = ref_male.body.points
+    b = bind(body, ref_male.body.faces, item, k=3)
+    frames = np.stack([body, body * 1.1, body + [0, 0.2, 0]])
+    batch = b.evaluate(frames)
+    for f in range(3):
+        np.testing.assert_allclose(batch[f], b.evaluate(frames[f]), atol=1e-12)
+
+
+def test_sphere_shell_keeps_its_clearance_on_a_deformed_sphere():
+    body, faces = _sphere(0.1, 4)
+    shell, _ = _sphere(0.108, 3)  # 8 mm off the skin, other tessellation
+    b = bind(body, faces, shell, k=5)
+    for scale in ([1.5, 1.5, 1.5], [1.3, 0.8, 1.1]):
+        target = body * scale
+        out = b.evaluate(target)
+        d = SurfaceQuery(faces, target).signed_distance(out)
+        assert np.abs(d - 0.008).max() < 0.0015, (scale, d.min(), d.max())
+        assert abs(np.median(d) - 0.008) < 0.0005
+
+
+def test_candidate_mask_restricts_triangles():
+    body, faces = _sphere(0.1, 3)
+    item = body * 1.05
+    labels = (body[faces].mean(1)[:, 0] > 0).astype(int)  # two hemispheres
+    allowed = np.zeros(len(item), int)  # every vertex: hemisphere 0 only
+    b = bind(body, faces, item, k=4, candidate_mask=(labels, allowed))
+    assert np.all(labels[b.triangles] == 0)
+    assert np.abs(b.evaluate(body) - item).max() < 1e-9
+
+
+def test_degenerate_triangles_are_not_used():
+    body, faces = _sphere(0.1, 2)
+    body = np.concatenate([body, [[0.1, 0, 0]]])
+    faces = np.concatenate([faces, [[len(body) - 1, len(body) - 1, 0]]])  # zero area
+    b = bind(body, faces, body[:10] * 1.02, k=5)
+    assert not np.any(b.triangles == len(faces) - 1)
+    assert np.isfinite(b.evaluate(body)).all()
+
+
+def test_bad_arguments():
+    body, faces = _sphere(0.1, 1)
+    with pytest.raises(ValueError):
+        bind(body, faces, np.zeros((0, 3)))
+    with pytest.raises(ValueError):
+        bind(body, faces, body, k=0)

@@ -1,0 +1,172 @@
+"""Redress: real targets meet the thresholds; skirts do not tear; rigid items stay rigid."""
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+from wearfit_usd import redress
+from wearfit_usd.clearance import SurfaceQuery
+from wearfit_usd.errors import InputError
+from wearfit_usd.model import Mesh
+from wearfit_usd.skinning import skin_mesh
+
+
+def _mesh(name, points, faces):
+    return Mesh(name=name, points=np.asarray(points, float), faces=np.asarray(faces, np.int64),
+                face_vertex_counts=np.full(len(faces), 3), face_vertex_indices=np.ravel(faces),
+                tri_to_poly=np.arange(len(faces)))
+
+
+@pytest.fixture(scope="module")
+def heavy(usd_dir):
+    from wearfit_usd.usd_io import read_character
+    return read_character(usd_dir / "body_male_heavy.usdc")
+
+
+def test_heavy_male_thresholds_per_item(ref_male, heavy):
+    res = redress.dress(ref_male, heavy)
+    qr = SurfaceQuery(ref_male.body.faces, ref_male.body.points)
+    qt = SurfaceQuery(heavy.body.faces, heavy.body.points)
+    assert [m.name for m in res.items] == [m.name for m in ref_male.items]
+    for ref_item, item in zip(ref_male.items, res.items):
+        assert item.points.shape == ref_item.points.shape
+        assert np.array_equal(item.faces, ref_item.faces)
+        dr = qr.signed_distance(ref_item.points)
+        dt = qt.signed_distance(item.points)
+        new_pen = np.mean((dr > 0) & (dt < -0.001))
+        change = np.abs(dt - dr)
+        assert new_pen <= 0.005, (item.name, new_pen)
+        assert np.median(change) <= 0.002, (item.name, np.median(change))
+        assert np.percentile(change, 95) <= 0.010, (item.name, np.percentile(change, 95))
+
+
+def test_rigid_item_stays_rigid(ref_male, usd_dir):
+    from wearfit_usd.usd_io import read_character
+    tall = read_character(usd_dir / "body_male_tall.usdc")
+    res = redress.dress(ref_male, tall, rigid=["shoes01"], penetration=False)
+    sl = res.plan.item_slices()[[m.name for m in ref_male.items].index("shoes01")]
+    src, dst = res.plan.ref_points[sl], res.points[sl]
+    for side in (src[:, 0] > 0, src[:, 0] < 0):  # one transform per foot
+        s, rot, t = redress.similarity_fit(src[side], dst[side])
+        assert np.abs(s * src[side] @ rot + t - dst[side]).max() < 1e-9
+        assert 0.9 < s < 1.3
+    # the free binding does stretch it (otherwise the test proves nothing)
+    free = res.plan.binding.evaluate(tall.body.points)[sl]
+    s, rot, t = redress.similarity_fit(src, free)
+    assert np.abs(s * src @ rot + t - free).max() > 1e-3
+
+
+def _skirt(body_points, y_top=0.08, y_bottom=-0.30, rings=18, seg=48, gap=0.012):
+    """A flared tube around hips and thighs: each ring encloses the body slab."""
+    zc = float(np.median(body_points[np.abs(body_points[:, 1]) < 0.1, 2]))
+    ang = np.linspace(0, 2 * np.pi, seg, endpoint=False)
+    pts = []
+    for r, y in enumerate(np.linspace(y_top, y_bottom, rings)):
+        slab = body_points[np.abs(body_points[:, 1] - y) < 0.03]
+        slab = slab[np.abs(slab[:, 0]) < 0.3]
+        a = np.arctan2(slab[:, 2] - zc, slab[:, 0])
+        rad = np.hypot(slab[:, 0], slab[:, 2] - zc)
+        sector = np.floor((a % (2 * np.pi)) / (2 * np.pi) * seg).astype(int)
+        rmax = np.zeros(seg)
+        np.maximum.at(rmax, sector, rad)
+        rmax = np.maximum(rmax, np.roll(rmax, 1))
+        rmax = np.maximum(rmax, np.roll(rmax, -1)) + gap + 0.02 * r / rings
+        pts.append(np.stack([rmax * np.cos(ang), np.full(seg, y), zc + rmax * np.sin(ang)], 1))
+    pts = np.concatenate(pts)
+    i = np.arange(rings - 1)[:, None] * seg
+    j = np.arange(seg)[None, :]
+    a, b = i + j, i + (j + 1) % seg
+    c, d = a + seg, b + seg
+    faces = np.concatenate([np.stack([a, c, b], -1).reshape(-1, 3), np.stack([b, c, d], -1).reshape(-1, 3)])
+    return pts, faces
+
+
+def _legs_apart(char, degrees=25.0):
+    sk = char.skeleton
+    world = sk.bind_world.copy()
+    parents = sk.parents
+    for name, sign in (("thigh_l", 1.0), ("thigh_r", -1.0)):
+        j0 = sk.index(name)
+        p = world[j0, 3, :3].copy()
+        a = np.radians(degrees) * sign
+        m = np.eye(4)
+        m[:3, :3] = [[np.cos(a), np.sin(a), 0], [-np.sin(a), np.cos(a), 0], [0, 0, 1]]
+        to, back = np.eye(4), np.eye(4)
+        to[3, :3], back[3, :3] = -p, p
+        t = to @ m @ back
+        sub = np.zeros(len(parents), bool)
+        sub[j0] = True
+        for j in range(len(parents)):
+            if parents[j] >= 0 and sub[parents[j]]:
+                sub[j] = True
+        world[sub] = world[sub] @ t
+    return skin_mesh(char.body, sk, world)
+
+
+def _max_edge_ratio(before, after, faces):
+    e = redress.edges(faces)
+    lb = np.linalg.norm(before[e[:, 0]] - before[e[:, 1]], axis=1)
+    la = np.linalg.norm(after[e[:, 0]] - after[e[:, 1]], axis=1)
+    return float((la / lb).max())
+
+
+def test_skirt_does_not_tear_between_the_legs(ref_male):
+    import copy
+    pts, faces = _skirt(ref_male.body.points)
+    ref = copy.copy(ref_male)
+    ref.items = [_mesh("skirt", pts, faces)]
+    posed = _legs_apart(ref_male)
+    target = copy.copy(ref_male)
+    target.body = ref_male.body.copy_with_points(posed)
+    with_regions = redress.dress(ref, target, rigid="none", penetration=False)
+    without = redress.dress(ref, target, rigid="none", penetration=False, use_regions=False)
+    assert with_regions.plan.skirt_items == ["skirt"]
+    # no vertex is bound to triangles of both legs
+    lab = with_regions.plan.tri_labels[with_regions.plan.binding.triangles]
+    both = np.any(lab == 1, axis=1) & np.any(lab == 2, axis=1)
+    assert not both.any()
+    r_with = _max_edge_ratio(pts, with_regions.points, faces)
+    r_without = _max_edge_ratio(pts, without.points, faces)
+    assert r_with < 1.5, r_with
+    assert r_without > 2.0, r_without
+
+
+def test_trousers_are_not_taken_for_a_skirt(ref_male):
+    p = redress.plan(ref_male)
+    assert p.skirt_items == []
+
+
+def test_push_out_moves_inside_points_to_their_clearance():
+    import trimesh
+    s = trimesh.creation.icosphere(subdivisions=3, radius=0.1)
+    body, faces = np.asarray(s.vertices), np.asarray(s.faces)
+    q = SurfaceQuery(faces, body)
+    d = np.array([[0.09, 0, 0], [0, 0.2, 0], [0, 0, -0.095]])
+    out, moved = redress.push_out(q, d, np.array([0.005, 0.005, np.nan]))
+    assert moved.tolist() == [True, False, False]
+    dist = q.signed_distance(out)
+    assert abs(dist[0] - 0.005) < 1e-9
+    np.testing.assert_allclose(out[1:], d[1:])
+
+
+def test_no_items_is_an_error(ref_male, heavy):
+    import copy
+    ref = copy.copy(ref_male)
+    ref.items = []
+    with pytest.raises(InputError):
+        redress.dress(ref, heavy)
+
+
+def test_far_item_warns(ref_male, heavy):
+    import copy
+    ref = copy.copy(ref_male)
+    eb = ref_male.item("eyebrow001")
+    ref.items = [eb.copy_with_points(eb.points + [0, 2.0, 0])]
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        redress.dress(ref, heavy)
+    assert any("from the body" in str(x.message) for x in w)
+    with pytest.raises(InputError):
+        redress.dress(ref, heavy, strict_far=True)
