@@ -303,7 +303,11 @@ class Renderer:
         from OpenGL.GL import GL_ARRAY_BUFFER, glBindBuffer, glBufferSubData
         self._osr._platform.make_current()
         for e in dirty:
-            if e.prim._vaid is None:  # not in the context yet: uploaded on first draw
+            if e.prim._vaid is None:  # not in the context yet: pyrender uploads its own
+                e.prim.positions = e.data[:, 0:3]  # copies on the first draw
+                e.prim.normals = e.data[:, 3:6]
+                if e.has_colors:
+                    e.prim.color_0 = e.data[:, 6:10]
                 e.dirty = False
                 continue
             glBindBuffer(GL_ARRAY_BUFFER, e.prim._buffers[0])
@@ -364,6 +368,8 @@ class Renderer:
         if self._osr is not None:
             try:
                 self._osr.delete()
+            except Exception as exc:  # e.g. EGL display already terminated by another renderer
+                debug(f"render: releasing the GL context failed: {exc}")
             finally:
                 self._osr = None
 

@@ -158,12 +158,12 @@ def select_times(time_range: tuple[float, float], frames, path) -> list[float]:
     return [start + i for i in range(n)]
 
 
-def _triangles(prim, path):
+def _triangles(prim, path, time):
     from pxr import UsdGeom
     from ..usd_io import triangulate
     mesh = UsdGeom.Mesh(prim)
-    counts = mesh.GetFaceVertexCountsAttr().Get()
-    idx = mesh.GetFaceVertexIndicesAttr().Get()
+    counts = mesh.GetFaceVertexCountsAttr().Get(time)
+    idx = mesh.GetFaceVertexIndicesAttr().Get(time)
     if counts is None or idx is None or len(counts) == 0:
         return None
     counts = np.asarray(counts, dtype=np.int64)
@@ -242,8 +242,10 @@ def read_scene(path, frames=None, progress_desc: str | None = None) -> SceneDesc
     time_range = _stage_time_range(stage, meshes, [v[1] for v in skinned.values()])
     times = select_times(time_range, frames, path)
 
-    def npts(prim):
-        v = UsdGeom.Mesh(prim).GetPointsAttr().Get()
+    t_first = Usd.TimeCode(times[0])
+
+    def npts(prim):  # at the first frame: points may exist only as time samples
+        v = UsdGeom.Mesh(prim).GetPointsAttr().Get(t_first)
         return 0 if v is None else len(v)
 
     # body: the skinned mesh with most points, else the largest mesh
@@ -252,7 +254,7 @@ def read_scene(path, frames=None, progress_desc: str | None = None) -> SceneDesc
 
     entries = []
     for prim in meshes:
-        faces = _triangles(prim, path)
+        faces = _triangles(prim, path, t_first)
         n = npts(prim)
         if faces is None or n == 0 or len(faces) == 0:
             continue  # empty mesh: nothing to draw

@@ -1,0 +1,144 @@
+"""Render speed: frames/s at 640x480 for the dressed reference character.
+
+Rendering only (the scene is read once beforehand): the same Renderer draws
+ref_male.usda (body + 5 items, ~52k triangles)
+
+* ``static``: nothing changes between frames (no upload);
+* ``buffer update``: every mesh gets new vertices each frame -> normals
+  recomputed and the interleaved vertex buffer re-uploaded (glBufferSubData);
+* ``rebuild (baseline)``: the same new vertices, but a new pyrender mesh is
+  built and uploaded each frame;
+* ``antialias static``: pyrender's 4x multisampling kept (EGL only).
+
+All in one process, so the ratios compare like with like.
+Run alone: ``python3 benchmarks/bench_render.py [--full]`` (writes
+benchmarks/results/render.json) or through ``python3 -m benchmarks``.
+"""
+from __future__ import annotations
+
+import json
+import sys
+import time
+from pathlib import Path
+
+if __package__ in (None, ""):  # run as a script: make the checkout importable
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+SIZE = (640, 480)
+
+
+def _data_dir() -> Path:
+    import os
+    return Path(os.environ.get("WEARFIT_DATA", REPO.parent / "shared" / "data"))
+
+
+def _wobble(points: np.ndarray, k: int) -> np.ndarray:
+    """A deformed copy (a few mm travelling wave), new array every call."""
+    p = points.astype(np.float32, copy=True)
+    p[:, 0] += 0.004 * np.sin(10.0 * p[:, 1] + 0.7 * k)
+    p[:, 2] += 0.004 * np.cos(8.0 * p[:, 1] + 0.5 * k)
+    return p
+
+
+class _Case:
+    """One renderer set up for a case; :meth:`frame` times one frame."""
+
+    def __init__(self, scene, update: str, changing: bool, antialias: bool):
+        from wearfit_usd.render.camera import frame_box
+        from wearfit_usd.render.offscreen import Renderer
+        self.changing = changing
+        base = [m.frames[0] for m in scene.meshes]
+        self.poses = [[_wobble(b, k) for b in base] for k in range(4)] if changing else None
+        lo, hi = scene.bounds()
+        self.r = Renderer(SIZE, update=update, antialias=antialias)
+        self.hs = [self.r.add_mesh(m.name, b, m.faces, color=m.color)
+                   for m, b in zip(scene.meshes, base)]
+        self.r.set_view(frame_box(lo, hi, 28.0, 10.0, SIZE[0] / SIZE[1]))
+        self.first = self.r.render()  # warm-up: context, shaders, first upload
+        self.i = 0
+        self.times: list[float] = []
+        self.set_times: list[float] = []
+
+    def frame(self):
+        t0 = time.perf_counter()
+        if self.changing:
+            pose = self.poses[self.i % len(self.poses)]
+            for h, p in zip(self.hs, pose):
+                self.r.set_points(h, p.copy())  # a fresh array object, as from a new time code
+        t1 = time.perf_counter()
+        self.r.render()
+        t2 = time.perf_counter()
+        self.i += 1
+        self.times.append(t2 - t0)
+        self.set_times.append(t1 - t0)
+
+
+def run(full: bool, out_dir: Path) -> list[dict]:
+    """Cases run interleaved in blocks (the machine is shared: load hits
+    every case alike); frames/s = 1 / median frame time."""
+    import os
+    from wearfit_usd.render.scene import read_scene
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    stage = _data_dir() / "usd" / "ref_male.usda"
+    scene = read_scene(stage)
+    n = 100 if full else 30
+    specs = [
+        ("static", "buffer", False, False),
+        ("buffer update (changing vertices)", "buffer", True, False),
+        ("rebuild meshes each frame (baseline)", "rebuild", True, False),
+        ("antialias 4x, static", "buffer", False, True),
+    ]
+    cases = [(name, _Case(scene, u, c, aa)) for name, u, c, aa in specs]
+    try:
+        from wearfit_usd.render.media import write_png
+        write_png(cases[0][1].first, out_dir / "render_ref_male.png")
+        load0 = os.getloadavg()[0]
+        block = 5
+        for _ in range(0, n, block):
+            for name, c in cases:
+                for _ in range(block if not name.startswith("antialias") else 2):
+                    c.frame()
+        load1 = os.getloadavg()[0]
+        rows = []
+        for name, c in cases:
+            med = float(np.median(c.times))
+            rows.append({"case": name, "size": f"{SIZE[0]}x{SIZE[1]}",
+                         "triangles": c.r.n_triangles, "frames": len(c.times),
+                         "fps": round(1.0 / med, 2), "ms_per_frame_median": round(1000 * med, 2),
+                         "ms_per_frame_best": round(1000 * min(c.times), 2),
+                         "ms_set_points": round(1000 * float(np.median(c.set_times)), 2),
+                         "platform": c.r.platform})
+    finally:
+        for _, c in cases:
+            c.r.close()
+    rows.append({"case": "speed-up buffer update vs rebuild",
+                 "fps": round(rows[1]["fps"] / rows[2]["fps"], 2),
+                 "load_avg_1min": f"{load0:.2f}->{load1:.2f}"})
+    return rows
+
+
+def main(argv=None) -> int:
+    import argparse
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--full", action="store_true", help="100 frames per case instead of 30")
+    ap.add_argument("--out", default=str(REPO / "benchmarks" / "results"))
+    args = ap.parse_args(argv)
+    out = Path(args.out)
+    rows = run(args.full, out)
+    try:
+        from benchmarks import format_table
+        print(format_table(rows))
+    except Exception:
+        for r in rows:
+            print(r)
+    (out / "render.json").write_text(json.dumps(rows, indent=2, default=float))
+    print(f"wrote {out / 'render.json'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,299 @@
+"""Offscreen previews: real data, assertions on pixels."""
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+
+os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
+
+SIZE = (320, 240)
+BG = np.array([0.94, 0.94, 0.95]) * 255
+
+
+def _foreground(img: np.ndarray) -> np.ndarray:
+    return np.abs(img.astype(float) - BG).max(axis=2) > 12
+
+
+def _chroma_hits(img: np.ndarray, color, tol=0.035, min_brightness=25) -> int:
+    """Pixels whose chromaticity (rgb / sum) is close to ``color``'s."""
+    px = img.reshape(-1, 3).astype(float)
+    s = px.sum(axis=1)
+    ok = s > 3 * min_brightness
+    chroma = px[ok] / s[ok, None]
+    c = np.asarray(color, float)
+    c = c / c.sum()
+    return int((np.abs(chroma - c).max(axis=1) < tol).sum())
+
+
+@pytest.fixture(scope="module")
+def male_scene(usd_dir):
+    from wearfit_usd.render.scene import read_scene
+    return read_scene(usd_dir / "ref_male.usda")
+
+
+@pytest.fixture(scope="module")
+def male_views(male_scene):
+    from wearfit_usd.render.preview import render_scene
+    out = {}
+    for cam in ("front", "side"):
+        out[cam] = render_scene(male_scene, size=SIZE, camera=cam, show_progress=False)[0]
+    return out
+
+
+def test_scene_reads_zup_stage_into_yup_metres(male_scene):
+    assert male_scene.up_axis == "Z"
+    body = male_scene.body
+    assert body is not None and body.skinned and body.name == "Body"
+    lo, hi = body.frames[0].min(0), body.frames[0].max(0)
+    height = hi[1] - lo[1]
+    assert 1.5 < height < 2.0, height  # Y up, metres
+    names = {m.name for m in male_scene.items}
+    assert {"male_casualsuit01", "shoes01", "fedora01"} <= names
+    colors = [tuple(m.color) for m in male_scene.meshes]
+    assert len(set(colors)) == len(colors), "body and items need distinct colours"
+
+
+def test_character_framed_and_centred(male_views):
+    for cam, img in male_views.items():
+        assert img.shape == (SIZE[1], SIZE[0], 3) and img.dtype == np.uint8
+        ys, xs = np.nonzero(_foreground(img))
+        assert len(ys) > 0.04 * img.shape[0] * img.shape[1], cam
+        # in frame: not touching the borders, tall, centred
+        assert ys.min() > 0 and ys.max() < img.shape[0] - 1 and xs.min() > 0 and xs.max() < img.shape[1] - 1
+        assert (ys.max() - ys.min()) > 0.7 * img.shape[0], cam
+        cy, cx = (ys.min() + ys.max()) / 2, (xs.min() + xs.max()) / 2
+        assert abs(cy - img.shape[0] / 2) < 0.1 * img.shape[0], (cam, cy)
+        assert abs(cx - img.shape[1] / 2) < 0.1 * img.shape[1], (cam, cx)
+        # lit: not flat; shading varies over the figure
+        assert img[ys, xs].astype(float).std() > 15
+
+
+def test_items_visible_in_their_colours(male_scene, male_views):
+    img = male_views["front"]
+    hits = {m.name: _chroma_hits(img, m.color) for m in male_scene.meshes}
+    assert hits["male_casualsuit01"] > 2000, hits
+    assert hits["Body"] > 200, hits          # face and hands
+    assert hits["fedora01"] > 20, hits
+    assert hits["shoes01"] > 20, hits
+
+
+def test_front_and_side_differ(male_views):
+    a, b = male_views["front"].astype(float), male_views["side"].astype(float)
+    assert np.abs(a - b).mean() > 3.0
+    # the side silhouette is much narrower than the front one (arms out)
+    wa = np.ptp(np.nonzero(_foreground(male_views["front"]))[1])
+    wb = np.ptp(np.nonzero(_foreground(male_views["side"]))[1])
+    assert wb < 0.75 * wa, (wa, wb)
+
+
+# --------------------------------------------------------------------------
+# synthetic stages
+
+
+def _cube(size=1.0):
+    import trimesh
+    m = trimesh.creation.box(extents=(size, size, size))
+    return np.asarray(m.vertices), np.asarray(m.faces)
+
+
+def _write_animated(path):
+    """3 frames: a skinned box whose joint swings (SkelAnimation) and a
+    plain box with time-sampled points."""
+    from pxr import Gf, Sdf, Usd, UsdGeom, UsdSkel, Vt
+    stage = Usd.Stage.CreateNew(str(path))
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
+    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+    stage.SetStartTimeCode(0)
+    stage.SetEndTimeCode(2)
+    stage.SetTimeCodesPerSecond(24)
+    UsdGeom.Xform.Define(stage, "/World")
+    root = UsdSkel.Root.Define(stage, "/World/Char")
+    skel = UsdSkel.Skeleton.Define(stage, "/World/Char/Skel")
+    joints = ["root", "root/arm"]
+    skel.CreateJointsAttr(joints)
+    rest = [Gf.Matrix4d(1.0), Gf.Matrix4d(1.0).SetTranslate(Gf.Vec3d(0, 1, 0))]
+    bind = [Gf.Matrix4d(1.0), Gf.Matrix4d(1.0).SetTranslate(Gf.Vec3d(0, 1, 0))]
+    skel.CreateBindTransformsAttr(Vt.Matrix4dArray(bind))
+    skel.CreateRestTransformsAttr(Vt.Matrix4dArray(rest))
+    anim = UsdSkel.Animation.Define(stage, "/World/Char/Anim")
+    anim.CreateJointsAttr(joints)
+    anim.CreateTranslationsAttr().Set(Vt.Vec3fArray([(0, 0, 0), (0, 1, 0)]))
+    anim.CreateScalesAttr().Set(Vt.Vec3hArray([(1, 1, 1), (1, 1, 1)]))
+    rot = anim.CreateRotationsAttr()
+    for t, deg in ((0, 0.0), (1, 45.0), (2, 90.0)):
+        q = Gf.Rotation(Gf.Vec3d(0, 0, 1), deg).GetQuat()
+        rot.Set(Vt.QuatfArray([Gf.Quatf(1, 0, 0, 0), Gf.Quatf(q)]), t)
+    UsdSkel.BindingAPI.Apply(skel.GetPrim()).CreateAnimationSourceRel().SetTargets([anim.GetPath()])
+    pts, faces = _cube(0.5)
+    pts = pts + np.array([0, 1.5, 0])  # around the arm joint's child end
+    mesh = UsdGeom.Mesh.Define(stage, "/World/Char/ArmMesh")
+    mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(pts.astype(np.float32)))
+    mesh.CreateFaceVertexCountsAttr([3] * len(faces))
+    mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(faces.ravel().astype(np.int32)))
+    b = UsdSkel.BindingAPI.Apply(mesh.GetPrim())
+    b.CreateSkeletonRel().SetTargets([skel.GetPath()])
+    b.CreateJointIndicesPrimvar(False, 1).Set(Vt.IntArray([1] * len(pts)))
+    b.CreateJointWeightsPrimvar(False, 1).Set(Vt.FloatArray([1.0] * len(pts)))
+    b.CreateGeomBindTransformAttr(Gf.Matrix4d(1.0))
+    box = UsdGeom.Mesh.Define(stage, "/World/Box")
+    bp, bf = _cube(0.3)
+    box.CreateFaceVertexCountsAttr([3] * len(bf))
+    box.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(bf.ravel().astype(np.int32)))
+    box.CreateDisplayColorPrimvar(UsdGeom.Tokens.constant).Set([(0.1, 0.8, 0.2)])
+    for t in range(3):
+        box.GetPointsAttr().Set(Vt.Vec3fArray.FromNumpy((bp + [0.8 + 0.3 * t, 0.2, 0]).astype(np.float32)), t)
+    stage.GetRootLayer().Save()
+    return path
+
+
+@pytest.fixture(scope="module")
+def animated_stage(tmp_path_factory):
+    return _write_animated(tmp_path_factory.mktemp("anim") / "anim.usda")
+
+
+def test_animated_stage_frames_differ(animated_stage):
+    from wearfit_usd.render.scene import read_scene
+    from wearfit_usd.render.preview import render_scene
+    scene = read_scene(animated_stage)
+    assert scene.times == [0.0, 1.0, 2.0]
+    arm = next(m for m in scene.meshes if m.name == "ArmMesh")
+    box = next(m for m in scene.meshes if m.name == "Box")
+    assert arm.skinned and arm.animated and box.animated
+    # UsdSkel posed the arm: 90 degrees about Z around (0, 1, 0) takes the
+    # box centre (0, 1.5, 0) to (-0.5, 1, 0)
+    assert np.allclose(arm.frames[2].mean(0), [-0.5, 1.0, 0.0], atol=1e-4)
+    assert np.allclose(box.color, [0.1, 0.8, 0.2])  # authored displayColor
+    imgs = render_scene(scene, size=(160, 120), camera="front", show_progress=False)
+    assert len(imgs) == 3
+    d = np.abs(imgs[2].astype(float) - imgs[0].astype(float)).mean()
+    assert d > 2.0, d
+    px = imgs[0].reshape(-1, 3).astype(int)
+    green = (px[:, 1] > px[:, 0] + 60) & (px[:, 1] > px[:, 2] + 60)
+    assert green.sum() > 30, green.sum()
+
+
+def test_gif_and_mp4_written_and_readable(animated_stage, tmp_path):
+    import imageio.v3 as iio
+    from wearfit_usd.render.preview import render_to_dir
+    out = tmp_path / "out"
+    res = render_to_dir(animated_stage, out, size=(160, 120), gif=True, mp4=True,
+                        show_progress=False)
+    assert [p.name for p in res["frames"]] == ["frame_0000.png", "frame_0001.png", "frame_0002.png"]
+    assert (out / "contact_sheet.png").exists()
+    gif = iio.imread(out / "preview.gif", index=None)
+    assert gif.shape[0] == 3
+    frames = list(iio.imiter(out / "preview.mp4", plugin="pyav") if _has_pyav() else
+                  _read_mp4_frames(out / "preview.mp4"))
+    assert len(frames) == 3
+    assert frames[0].shape[:2] == (120, 160)
+    assert not [p for p in out.iterdir() if p.name.startswith(".")], "temporary files left"
+
+
+def _has_pyav():
+    try:
+        import av  # noqa: F401
+        return True
+    except ImportError:
+        return False
+
+
+def _read_mp4_frames(path):
+    import imageio.v2 as imageio
+    r = imageio.get_reader(str(path), format="FFMPEG")
+    try:
+        return [f for f in r]
+    finally:
+        r.close()
+
+
+def test_turntable_gives_n_views(animated_stage):
+    from wearfit_usd.render.preview import render_frames
+    imgs = render_frames(animated_stage, size=(96, 72), camera="turntable:4", show_progress=False)
+    assert len(imgs) == 4
+    assert np.abs(imgs[0].astype(float) - imgs[1].astype(float)).mean() > 1.0
+
+
+# --------------------------------------------------------------------------
+# heatmap
+
+
+def _write_sphere_shell(path, units_per_metre=100.0):
+    """Z-up stage in centimetres: a sphere body (r 0.3 m) and a shell
+    (r 0.33 m) shifted +3 cm along x: ~6 cm clearance on +x, ~0 on -x."""
+    import trimesh
+    from pxr import Usd, UsdGeom, Vt
+    stage = Usd.Stage.CreateNew(str(path))
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
+    UsdGeom.SetStageMetersPerUnit(stage, 1.0 / units_per_metre)
+    body = trimesh.creation.icosphere(subdivisions=4, radius=0.30)
+    shell = trimesh.creation.icosphere(subdivisions=3, radius=0.33)
+    for name, m, shift in (("Body", body, 0.0), ("Shell", shell, 0.03)):
+        g = UsdGeom.Mesh.Define(stage, f"/{name}")
+        pts = (np.asarray(m.vertices) + [shift, 0, 0]) * units_per_metre
+        g.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(pts.astype(np.float32)))
+        g.CreateFaceVertexCountsAttr([3] * len(m.faces))
+        g.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(np.asarray(m.faces).ravel().astype(np.int32)))
+    stage.GetRootLayer().Save()
+    return path
+
+
+def test_heatmap_colours_follow_clearance(tmp_path):
+    from wearfit_usd.render.heatmap import colormap
+    from wearfit_usd.render.preview import render_frames
+    path = _write_sphere_shell(tmp_path / "shell.usda")
+    w, h = 320, 240
+    img = render_frames(path, size=(w, h), camera="front", heatmap=True, show_progress=False)[0]
+    mid = img[int(h * 0.4):int(h * 0.6)].astype(float)
+    left = mid[:, int(w * 0.22):int(w * 0.36)].reshape(-1, 3)   # -x side: tight
+    right = mid[:, int(w * 0.60):int(w * 0.72)].reshape(-1, 3)  # +x side: loose
+    fg_l = left[np.abs(left - BG).max(1) > 12]
+    fg_r = right[np.abs(right - BG).max(1) > 12]
+    assert len(fg_l) > 50 and len(fg_r) > 50
+    l, r = fg_l.mean(0), fg_r.mean(0)
+    assert l[0] > l[2] + 40, l   # red dominates where the shell touches
+    assert r[2] > r[0] + 40, r   # blue dominates where it is ~6 cm away
+    # the colour map itself: tight -> red, loose -> blue
+    tight, loose = colormap(np.array([0.0, 0.06]))
+    assert tight[0] > 0.8 and loose[2] > 0.8
+    # legend drawn at the right edge
+    strip = img[int(h * 0.3):int(h * 0.7), w - 45:w - 30].astype(float)
+    assert (np.abs(strip - BG).max(axis=2) > 40).mean() > 0.3
+
+
+def test_heatmap_against_reference_is_neutral_for_itself(tmp_path):
+    from wearfit_usd.render.preview import render_frames
+    path = _write_sphere_shell(tmp_path / "shell.usda")
+    img = render_frames(path, size=(160, 120), camera="front", heatmap_against=path,
+                        show_progress=False)[0]
+    centre = img[50:70, 60:90].reshape(-1, 3).astype(float)
+    # zero change everywhere -> neutral grey, no strong hue
+    assert (centre.max(1) - centre.min(1)).mean() < 25
+
+
+# --------------------------------------------------------------------------
+# bad input
+
+
+def test_errors_empty_stage_missing_file_and_bad_frames(tmp_path, animated_stage):
+    from pxr import Usd, UsdGeom
+    from wearfit_usd.cli import main
+    from wearfit_usd.errors import InputError
+    from wearfit_usd.render.preview import render_frames
+    empty = tmp_path / "empty.usda"
+    st = Usd.Stage.CreateNew(str(empty))
+    UsdGeom.Xform.Define(st, "/Root")
+    st.GetRootLayer().Save()
+    with pytest.raises(InputError, match="no visible Mesh"):
+        render_frames(empty, show_progress=False)
+    with pytest.raises(InputError, match="not found"):
+        render_frames(tmp_path / "nope.usda", show_progress=False)
+    with pytest.raises(InputError, match="outside the stage's time range"):
+        render_frames(animated_stage, frames="0:7", show_progress=False)
+    out = tmp_path / "out"
+    assert main(["render", str(animated_stage), "-o", str(out), "--frames", "5:6", "-q"]) == 2
+    assert not out.exists() or not any(out.iterdir())
+    assert main(["render", str(empty), "-o", str(out), "-q"]) == 2
+    assert main(["render", str(animated_stage), "-o", str(out), "--camera", "top", "-q"]) == 2
+    assert not out.exists() or not any(out.iterdir())
