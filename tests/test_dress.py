@@ -1,0 +1,45 @@
+"""CLI: `wearfit dress REF TARGET -o OUT` writes a readable stage; bad input writes nothing."""
+from __future__ import annotations
+
+import numpy as np
+
+from wearfit_usd.cli import main
+
+
+def test_cli_writes_target_body_and_all_items(tmp_path, usd_dir, ref_male):
+    from wearfit_usd.usd_io import read_character
+    out = tmp_path / "out.usda"
+    rc = main(["dress", str(usd_dir / "ref_male.usda"), str(usd_dir / "body_male_heavy.usdc"),
+               "-o", str(out), "--k", "4", "-q"])
+    assert rc == 0 and out.exists()
+    back = read_character(out)
+    target = read_character(usd_dir / "body_male_heavy.usdc")
+    assert back.up_axis == target.up_axis
+    np.testing.assert_allclose(back.body.points, target.body.points, atol=1e-5)
+    assert back.skeleton.joint_names == target.skeleton.joint_names
+    assert sorted(m.name for m in back.items) == sorted(m.name for m in ref_male.items)
+    for m in ref_male.items:
+        b = back.item(m.name)
+        assert np.array_equal(b.face_vertex_counts, m.face_vertex_counts)
+        assert np.array_equal(b.face_vertex_indices, m.face_vertex_indices)
+        assert [p.name for p in b.primvars] == [p.name for p in m.primvars]
+        # moved onto the heavier body, but still close to where it was
+        assert np.abs(b.points - m.points).max() < 0.1
+
+
+def test_cli_missing_file_exit_2_no_output(tmp_path, usd_dir, capsys):
+    out = tmp_path / "out.usda"
+    rc = main(["dress", str(tmp_path / "missing.usda"), str(usd_dir / "body_male_heavy.usdc"),
+               "-o", str(out)])
+    assert rc == 2
+    assert not out.exists()
+    assert list(tmp_path.iterdir()) == []
+    assert "missing.usda" in capsys.readouterr().err
+
+
+def test_cli_reference_without_items_exit_2(tmp_path, usd_dir):
+    out = tmp_path / "out.usda"
+    rc = main(["dress", str(usd_dir / "body_male_tall.usdc"), str(usd_dir / "body_male_heavy.usdc"),
+               "-o", str(out), "-q"])
+    assert rc == 2
+    assert not out.exists()
