@@ -149,19 +149,10 @@ def push_out(body_query: SurfaceQuery, item_points: np.ndarray, min_clearance: n
 # body fit
 
 def fitted_body_points(ref: Character, target: Character) -> np.ndarray:
-    """The reference body topology deformed onto the target (N_ref, 3)."""
-    try:
-        from .body_fit import fit_character
-    except ImportError:
-        fit_character = None
-    if fit_character is not None:
-        return np.asarray(fit_character(ref, target).points, dtype=np.float64)
-    # TEMPORARY fallback until body_fit.py lands: same-topology targets only
-    if target.body.n_points == ref.body.n_points and np.array_equal(target.body.faces, ref.body.faces):
-        return target.body.points.copy()
-    raise InputError(target.source, "body has another topology than the reference "
-                                    f"({target.body.n_points} vs {ref.body.n_points} points): "
-                                    "needs body fitting (wearfit_usd.body_fit), not available")
+    """The reference body topology deformed onto the target (N_ref, 3), by
+    :func:`wearfit_usd.body_fit.fit_character`."""
+    from .body_fit import fit_character
+    return np.asarray(fit_character(ref, target).points, dtype=np.float64)
 
 
 # --------------------------------------------------------------------------

@@ -1,0 +1,190 @@
+"""Dressing benchmark: reference items on every target body, next to MakeHuman's .mhclo fitting.
+
+Per (reference, target, item): new penetrations (item vertices >1 mm inside the
+target body that were outside the reference body), clearance change (median /
+95th percentile of |signed distance change|), flipped item triangles (normal
+against the reference normal turned by the body's local rotation), item edges
+stretched beyond the body's own local stretch, timings; for the same-topology
+targets also the MakeHuman proxy fit (.mhclo on the recipe shape incl. helper
+vertices) and the mean distance between both results.
+
+    python3 benchmarks/bench_dress.py [--full]
+"""
+from __future__ import annotations
+
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+if str(REPO) not in sys.path:
+    sys.path.insert(0, str(REPO))
+DATA = REPO.parent / "shared" / "data"
+
+MALE = ["body_male_heavy.usdc", "body_male_muscular_heavy.usdc", "body_male_tall.usdc",
+        "body_male_muscular_posed.usdc", "body_male_cmu_rig.usdc"]
+FEMALE = ["body_female_thin.usdc", "body_female_heavy.usdc", "body_female_short.usdc",
+          "body_female_uncommon_yup.usdc", "body_female_heavy_remeshed.usdc"]
+QUICK = {"body_male_heavy.usdc", "body_male_muscular_posed.usdc", "body_female_heavy.usdc",
+         "body_female_heavy_remeshed.usdc"}
+# body_shapes.json recipe of each target (None: no MakeHuman peer: posed body)
+SHAPE = {"ref_male.usda": "male_average", "ref_female.usda": "female_average",
+         "body_male_heavy.usdc": "male_heavy", "body_male_muscular_heavy.usdc": "male_muscular_heavy",
+         "body_male_tall.usdc": "male_tall", "body_male_muscular_posed.usdc": None,
+         "body_male_cmu_rig.usdc": "male_average", "body_female_thin.usdc": "female_thin",
+         "body_female_heavy.usdc": "female_heavy", "body_female_short.usdc": "female_short",
+         "body_female_uncommon_yup.usdc": "female_weak_uncommon_proportions",
+         "body_female_heavy_remeshed.usdc": "female_heavy"}
+
+
+def _proxies():
+    from wearfit_usd.mhclo import read_mhclo
+    return [read_mhclo(p) for p in sorted((DATA / "items").glob("*/*.mhclo"))]
+
+
+def _proxy_for(item, proxies):
+    for px in proxies:
+        if len(px.refs) == item.n_points and (item.name.startswith(px.name) or px.name.startswith(item.name)):
+            return px
+    return None
+
+
+def _frames(points, faces):
+    """Orthonormal frame (T, 3, 3) per triangle: rows e1/|e1|, n, e1 x n."""
+    e1 = points[faces[:, 1]] - points[faces[:, 0]]
+    e2 = points[faces[:, 2]] - points[faces[:, 0]]
+    n = np.cross(e1, e2)
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+    e1 = e1 / np.maximum(np.linalg.norm(e1, axis=1, keepdims=True), 1e-300)
+    return np.stack([e1, n, np.cross(e1, n)], axis=1)
+
+
+def _quality(ref_pts, new_pts, faces, tri0, ref_body, fit_body, body_faces):
+    """Flipped item triangles (%) and item edges stretched beyond the body's
+    local stretch (%)."""
+    from wearfit_usd.redress import edges
+    fr, ft = _frames(ref_body, body_faces), _frames(fit_body, body_faces)
+    t = tri0[faces[:, 0]]  # body triangle bound first to each item triangle's first vertex
+    rot = np.einsum("tji,tjk->tik", fr[t], ft[t])  # row-vector rotation ref -> target
+    def nrm(p):
+        n = np.cross(p[faces[:, 1]] - p[faces[:, 0]], p[faces[:, 2]] - p[faces[:, 0]])
+        return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+    nr, nt = nrm(ref_pts), nrm(new_pts)
+    ok = np.linalg.norm(np.cross(ref_pts[faces[:, 1]] - ref_pts[faces[:, 0]],
+                                 ref_pts[faces[:, 2]] - ref_pts[faces[:, 0]]), axis=1) > 1e-12
+    flipped = (np.einsum("ti,tij,tj->t", nr, rot, nt) < 0) & ok
+    e = edges(faces)
+    lr = np.linalg.norm(ref_pts[e[:, 0]] - ref_pts[e[:, 1]], axis=1)
+    lt = np.linalg.norm(new_pts[e[:, 0]] - new_pts[e[:, 1]], axis=1)
+    ratio = lt / np.maximum(lr, 1e-12)
+    bf = body_faces[tri0[e[:, 0]]]
+    br = np.stack([np.linalg.norm(fit_body[bf[:, i]] - fit_body[bf[:, (i + 1) % 3]], axis=1)
+                   / np.linalg.norm(ref_body[bf[:, i]] - ref_body[bf[:, (i + 1) % 3]], axis=1)
+                   for i in range(3)], axis=1)
+    out = (ratio < 0.8 * br.min(axis=1)) | (ratio > 1.25 * br.max(axis=1))
+    return 100.0 * flipped[ok].mean(), 100.0 * out.mean()
+
+
+def run(full: bool, out_dir: Path) -> list[dict]:
+    from wearfit_usd.clearance import SurfaceQuery
+    from wearfit_usd.mhclo import fit as mh_fit, shape_points, to_internal
+    from wearfit_usd.redress import apply, fitted_body_points, plan
+    from wearfit_usd.usd_io import read_character
+
+    usd = DATA / "usd"
+    proxies = _proxies()
+    shapes = {}
+    rows = []
+    for ref_name, targets in (("ref_male.usda", MALE), ("ref_female.usda", FEMALE)):
+        ref = read_character(usd / ref_name)
+        qr = SurfaceQuery(ref.body.faces, ref.body.points)
+        ref_d = [qr.signed_distance(m.points) for m in ref.items]
+        t0 = time.perf_counter()
+        pl = plan(ref)
+        t_plan = time.perf_counter() - t0
+        for tname in targets:
+            if not full and tname not in QUICK:
+                continue
+            tgt = read_character(usd / tname)
+            base = {"reference": ref_name, "target": tname}
+            try:
+                t0 = time.perf_counter()
+                body = fitted_body_points(ref, tgt)
+                t_fit = time.perf_counter() - t0
+            except Exception as exc:  # other topology without body_fit
+                rows.append({**base, "item": "*", "error": str(exc).split(": ", 1)[-1][:90]})
+                continue
+            pts, free, moved, tm = apply(pl, body, ref.body.faces)
+            qt = SurfaceQuery(tgt.body.faces, tgt.body.points)
+            shape = SHAPE.get(tname)
+            mh_base = body_err = None
+            if shape is not None:
+                if shape not in shapes:
+                    shapes[shape] = shape_points(DATA / "makehuman", shape)
+                mh_base = shapes[shape]
+                if tgt.body.n_points == ref.body.n_points:
+                    body_err = float(np.abs(to_internal(mh_base[:ref.body.n_points])
+                                            - tgt.body.points).max()) * 1000
+            for i, (item, sl) in enumerate(zip(pl.items, pl.item_slices())):
+                p = pts[sl]
+                dr, dt = ref_d[i], qt.signed_distance(p)
+                ch = np.abs(dt - dr)
+                flip, stretch = _quality(item.points, p, item.faces, pl.binding.triangles[sl, 0],
+                                         ref.body.points, body, ref.body.faces)
+                row = {**base, "item": item.name, "verts": item.n_points,
+                       "rigid": item.name in pl.rigid_items,
+                       "new_pen_pct": round(100 * float(np.mean((dr > 0) & (dt < -0.001))), 3),
+                       "clear_med_mm": round(float(np.median(ch)) * 1000, 3),
+                       "clear_p95_mm": round(float(np.percentile(ch, 95)) * 1000, 3),
+                       "flipped_pct": round(flip, 3), "overstretch_pct": round(stretch, 3),
+                       "pushed": int(moved[sl].sum())}
+                px = _proxy_for(item, proxies)
+                if mh_base is not None and px is not None:
+                    mp = to_internal(mh_fit(px, mh_base))
+                    dm = qt.signed_distance(mp)
+                    row.update({"mh_new_pen_pct": round(100 * float(np.mean((dr > 0) & (dm < -0.001))), 3),
+                                "mh_clear_med_mm": round(float(np.median(np.abs(dm - dr))) * 1000, 3),
+                                "mh_clear_p95_mm": round(float(np.percentile(np.abs(dm - dr), 95)) * 1000, 3),
+                                "dist_to_mh_mean_mm": round(float(np.linalg.norm(p - mp, axis=1).mean()) * 1000, 3)})
+                if body_err is not None:
+                    row["mh_body_recipe_err_mm"] = round(body_err, 6)
+                rows.append(row)
+            rows.append({**base, "item": "*timing*", "verts": int(len(pts)),
+                         "plan_s": round(t_plan, 4), "bind_s": round(pl.timings["bind_s"], 4),
+                         "evaluate_ms": round(tm["evaluate_s"] * 1000, 3),
+                         "penetration_s": round(tm["penetration_s"], 4), "body_fit_s": round(t_fit, 4)})
+        # per-frame evaluation speed of the whole binding (the lead's animation loop)
+        n = 200
+        t0 = time.perf_counter()
+        for _ in range(n):
+            pl.binding.evaluate(ref.body.points)
+        per = (time.perf_counter() - t0) / n
+        rows.append({"reference": ref_name, "target": "(per frame)", "item": "*evaluate*",
+                     "verts": int(pl.binding.n_items), "evaluate_ms": round(per * 1000, 3),
+                     "frames_per_s": round(1.0 / per, 1), "nnz": int(pl.binding.matrix.nnz)})
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / "dress.json").write_text(json.dumps(rows, indent=1))
+    return rows
+
+
+def _table(rows):
+    cols = ["reference", "target", "item", "verts", "rigid", "new_pen_pct", "mh_new_pen_pct",
+            "clear_med_mm", "clear_p95_mm", "mh_clear_med_mm", "mh_clear_p95_mm", "flipped_pct",
+            "overstretch_pct", "dist_to_mh_mean_mm", "pushed", "bind_s", "evaluate_ms",
+            "penetration_s", "frames_per_s", "error"]
+    used = [c for c in cols if any(c in r for r in rows)]
+    lines = [" | ".join(used)]
+    for r in rows:
+        lines.append(" | ".join(str(r.get(c, "")) for c in used))
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    import warnings
+    warnings.simplefilter("ignore")
+    rows = run("--full" in sys.argv, REPO / "benchmarks" / "results")
+    print(_table(rows))
