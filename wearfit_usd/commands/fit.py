@@ -1,14 +1,90 @@
-"""`wearfit fit` (name reserved; being implemented in its own issue)."""
+"""`wearfit fit REFERENCE TARGET -o FITTED.usd`: the reference body mesh
+(its topology, rig and skin weights) deformed onto the target body."""
 from __future__ import annotations
 
-from ..errors import WearfitError
+import json
+from pathlib import Path
+
+from ..errors import InputError
 
 
 def register(sub, common):
-    p = sub.add_parser("fit", parents=[common], help="(not available yet)")
+    p = sub.add_parser(
+        "fit", parents=[common],
+        help="deform the reference body (topology, rig, skin weights) onto a target body",
+        description="Deform the reference body mesh onto the target body automatically (no "
+                    "landmarks): pose alignment through the skeletons, then non-rigid "
+                    "registration. Writes the reference topology, skin weights and skeleton "
+                    "(joints moved onto the target's) in the target's up axis and units.")
+    p.add_argument("reference", help="reference rigged USD stage (its skinned body is fitted)")
+    p.add_argument("target", help="target USD stage (rigged, or any mesh with --no-skeleton)")
+    p.add_argument("-o", "--output", required=True, help="output .usd/.usda/.usdc")
+    p.add_argument("--no-pose", action="store_true",
+                   help="skip the skeleton pose step (global similarity only)")
+    p.add_argument("--force-registration", action="store_true",
+                   help="run the non-rigid registration even when the topologies are equal")
+    p.add_argument("--report", metavar="JSON", help="also write the fit diagnostics as JSON")
     p.set_defaults(func=run)
     return p
 
 
+def fitted_character(ref, target, result):
+    """A Character holding the fitted reference body: reference topology and
+    skin weights, reference skeleton re-bound at the posed joint transforms
+    (mapped joints on the target's joints), target up axis/units."""
+    import numpy as np
+
+    from ..model import Character, Skeleton
+
+    skel = None
+    if ref.skeleton is not None:
+        world = result.joint_world if result.joint_world is not None else ref.skeleton.bind_world
+        k = ref.skeleton.skel_to_world
+        tmp = Skeleton(ref.skeleton.joint_names, ref.skeleton.joint_paths, ref.skeleton.parents,
+                       np.asarray(world), ref.skeleton.rest_local, k, ref.skeleton.path)
+        tmp.rest_local = tmp.local_from_world(tmp.bind_world)  # rest pose = new bind pose
+        skel = tmp
+    body = ref.body.copy_with_points(result.points)
+    return Character(source=str(target.source), up_axis=target.up_axis,
+                     meters_per_unit=target.meters_per_unit, to_internal=target.to_internal,
+                     skeleton=skel, body=body, items=[],
+                     time_codes_per_second=target.time_codes_per_second)
+
+
 def run(args) -> int:
-    raise WearfitError("'wearfit fit' is not available in this version yet")
+    from ..body_fit import fit_character
+    from ..progress import info, warn
+    from ..usd_io import read_character, write_character
+
+    for f in (args.reference, args.target):
+        if not Path(f).exists():
+            raise InputError(f, "file not found")
+    out = Path(args.output)
+    if out.suffix.lower() not in (".usd", ".usda", ".usdc"):
+        raise InputError(out, "output must end in .usd, .usda or .usdc")
+    ref = read_character(args.reference)
+    target = read_character(args.target, require_skeleton=False)
+    opts = {"pose_align": not args.no_pose,
+            "same_topology_shortcut": not args.force_registration}
+    result = fit_character(ref, target, opts)
+    for w in result.warnings:
+        warn(w)
+    char = fitted_character(ref, target, result)
+    write_character(out, char, items=[], up_axis=target.up_axis,
+                    meters_per_unit=target.meters_per_unit)
+    d = result.diagnostics
+    if result.same_topology:
+        info(f"{out}: same topology as the target: fitted = target points "
+             f"({d['ref_vertices']} vertices)")
+    else:
+        info(f"{out}: fitted {d['ref_vertices']} vertices onto {d['target_vertices']} in "
+             f"{d['time_total_fit_s']:.2f} s ({d['alignment']}, {d['iterations']} iterations, "
+             f"{d['solver']}); distance fit->target mean {d['fit_to_target_mean_mm']:.2f} mm "
+             f"p99 {d['fit_to_target_p99_mm']:.2f} mm, target->fit mean "
+             f"{d['target_to_fit_mean_mm']:.2f} mm p99 {d['target_to_fit_p99_mm']:.2f} mm, "
+             f"{d['flipped_triangles']} flipped triangles")
+    if args.report:
+        Path(args.report).write_text(json.dumps(
+            {"diagnostics": d, "warnings": result.warnings, "same_topology": result.same_topology},
+            indent=2, default=float))
+    return 0
