@@ -59,7 +59,7 @@ ITEM_PALETTE = [
     (0.62, 0.20, 0.26),   # burgundy
     (0.36, 0.36, 0.40),   # charcoal
 ]
-HEATMAP_BODY_COLOR = (0.78, 0.78, 0.80)
+HEATMAP_BODY_COLOR = (0.50, 0.51, 0.54)  # mid grey avatar: light neutral items stand out
 
 
 HAIR_PALETTE = [(0.30, 0.19, 0.12), (0.50, 0.27, 0.14), (0.18, 0.13, 0.10)]
