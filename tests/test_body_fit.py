@@ -1,0 +1,179 @@
+"""Body fitting: fast path, synthetic known surfaces, real remeshed/posed
+targets, errors and the CLI."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from wearfit_usd.body_fit import (FitOptions, SurfaceIndex, chamfer, closest_on_triangles,
+                                  fit_body, fit_character)
+from wearfit_usd.errors import GeometryError
+
+
+@pytest.fixture(scope="module")
+def remeshed(usd_dir):
+    from wearfit_usd.usd_io import read_character
+    return read_character(usd_dir / "body_female_heavy_remeshed.usdc")
+
+
+@pytest.fixture(scope="module")
+def posed(usd_dir):
+    from wearfit_usd.usd_io import read_character
+    return read_character(usd_dir / "body_male_muscular_posed.usdc")
+
+
+def _sphere(n_sub: int):
+    import trimesh
+    m = trimesh.creation.icosphere(subdivisions=n_sub)
+    return np.asarray(m.vertices, float), np.asarray(m.faces, np.int64)
+
+
+def test_closest_point_matches_brute_force():
+    rng = np.random.default_rng(3)
+    a, b, c, p = (rng.normal(size=(3000, 3)) for _ in range(4))
+    pts, bary, d2 = closest_on_triangles(p, a, b, c)
+    assert np.allclose(((pts - p) ** 2).sum(1), d2)
+    uv = rng.random((3000, 2))
+    uv = np.where(uv.sum(1, keepdims=True) > 1, 1 - uv, uv)
+    samples = a[:, None] + uv[None, :, :1] * (b - a)[:, None] + uv[None, :, 1:] * (c - a)[:, None]
+    brute = ((samples - p[:, None]) ** 2).sum(-1).min(1)
+    assert np.all(brute >= d2 - 1e-9)
+    assert np.median(brute - d2) < 0.02  # sampling of big random triangles is coarse
+    assert np.allclose(bary.sum(1), 1.0) and bary.min() >= -1e-9
+
+
+def test_same_topology_fast_path_is_exact(ref_female, usd_dir):
+    from wearfit_usd.usd_io import read_character
+    tgt = read_character(usd_dir / "body_female_thin.usdc")
+    r = fit_character(ref_female, tgt)
+    assert r.same_topology
+    assert np.array_equal(r.points, tgt.body.points)
+    assert r.diagnostics["solver"].startswith("none")
+
+
+def test_synthetic_ellipsoid_onto_deformed_remeshed_surface():
+    # reference: a coarse sphere; target: a finer, differently triangulated
+    # sphere, scaled anisotropically and bulged - its surface is known exactly
+    src_p, src_f = _sphere(3)
+    tgt_p, tgt_f = _sphere(4)
+    rng = np.random.default_rng(0)
+    rot = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+    rot *= np.sign(np.linalg.det(rot))
+    tgt_p = tgt_p @ rot  # another triangulation of the unit sphere
+    scale = np.array([0.30, 0.40, 0.26])  # metres: body-part sized
+    tgt = tgt_p * scale
+    tgt[:, 0] *= 1.0 + 0.15 * np.exp(-((tgt_p[:, 1] - 0.5) ** 2) / 0.1)  # a bulge
+    r = fit_body(src_p * 0.4, src_f, tgt, tgt_f)
+    assert not r.same_topology
+    assert any("no skeleton" in w for w in r.warnings)
+    d = r.diagnostics
+    assert d["flipped_triangles"] == 0
+    # distances to the exact target surface (its own mesh, 4x finer)
+    assert d["fit_to_target_mean_mm"] < 1.0 and d["target_to_fit_mean_mm"] < 1.0
+    assert d["fit_to_target_p99_mm"] < 3.0 and d["target_to_fit_p99_mm"] < 3.0
+
+
+def test_remeshed_target_accuracy(ref_female, remeshed):
+    r = fit_character(ref_female, remeshed)
+    d = r.diagnostics
+    assert not r.same_topology
+    assert r.points.shape == ref_female.body.points.shape
+    assert d["flipped_triangles"] == 0
+    assert d["fit_to_target_mean_mm"] <= 1.0
+    assert d["target_to_fit_mean_mm"] <= 1.0
+    assert d["target_to_fit_p99_mm"] <= 5.0
+    # the reference's mouth cavity and eye sockets do not exist on the voxel
+    # remesh (closed at 10 mm): they are the vertices beyond 5 mm
+    assert d["fit_to_target_p99_mm"] <= 12.0
+    # the independent exact metric agrees with the diagnostics
+    chk = chamfer(r.points, ref_female.body.faces, remeshed.body.points, remeshed.body.faces)
+    assert abs(chk["target_to_fit_mean_mm"] - d["target_to_fit_mean_mm"]) < 1e-6
+
+
+def test_posed_target_pose_step_helps(ref_male, posed):
+    opts = {"same_topology_shortcut": False}
+    with_pose = fit_character(ref_male, posed, opts)
+    without = fit_character(ref_male, posed, dict(opts, pose_align=False))
+    a, b = with_pose.diagnostics, without.diagnostics
+    assert a["alignment"] == "pose" and b["alignment"] == "joint similarity"
+    for k in ("fit_to_target_mean_mm", "target_to_fit_mean_mm"):
+        assert a[k] <= 1.0
+        assert b[k] > 3 * a[k]
+    assert a["fit_to_target_p99_mm"] <= 5.0 and a["target_to_fit_p99_mm"] <= 5.0
+    assert a["flipped_triangles"] == 0
+    # same vertex order underneath: the fit lands near the true correspondences
+    err = np.linalg.norm(with_pose.points - posed.body.points, axis=1)
+    err0 = np.linalg.norm(without.points - posed.body.points, axis=1)
+    assert np.median(err) < 0.01 and np.median(err) < 0.2 * np.median(err0)
+    # pose alignment alone already brings the mapped joints onto the target's
+    names = ref_male.skeleton.joint_names
+    j = names.index("hand_l")
+    assert np.allclose(with_pose.joint_world[j, 3, :3],
+                       posed.skeleton.bind_positions()[posed.skeleton.index("hand_l")])
+
+
+def test_nan_input_raises_geometry_error_naming_the_file(ref_female):
+    pts = ref_female.body.points.copy()
+    pts[10] = np.nan
+    with pytest.raises(GeometryError, match="target.usdc"):
+        fit_body(ref_female.body.points, ref_female.body.faces, pts, ref_female.body.faces,
+                 options={"target_label": "target.usdc"})
+
+
+def test_zero_area_triangles_are_reported():
+    p, f = _sphere(3)
+    f2 = np.concatenate([f, [[0, 0, 1]]])  # a degenerate triangle
+    r = fit_body(p * 0.3, f2, p * 0.33, f)
+    assert r.diagnostics["ref_degenerate_triangles"] == 1
+    assert any("zero-area" in w for w in r.warnings)
+    assert r.diagnostics["fit_to_target_mean_mm"] < 1.0
+
+
+def test_unknown_option_is_rejected():
+    with pytest.raises(ValueError, match="unknown fit options"):
+        FitOptions.from_any({"nope": 1})
+
+
+def test_target_without_skeleton_warns_and_fits(ref_female, remeshed):
+    r = fit_body(ref_female.body.points, ref_female.body.faces, remeshed.body.points + [0.2, 0, 0.1],
+                 remeshed.body.faces, ref_skeleton=ref_female.skeleton,
+                 ref_joint_indices=ref_female.body.joint_indices,
+                 ref_joint_weights=ref_female.body.joint_weights)
+    assert any("no skeleton" in w for w in r.warnings)
+    assert r.diagnostics["alignment"] == "surface similarity"
+    assert r.diagnostics["target_to_fit_mean_mm"] < 2.0
+    assert r.diagnostics["fit_to_target_mean_mm"] < 2.0
+
+
+def test_surface_index_exact_vs_fast(remeshed, ref_female):
+    idx = SurfaceIndex(remeshed.body.points, remeshed.body.faces)
+    exact = idx.query(ref_female.body.points)["distance"]
+    fast = idx.query(ref_female.body.points, fast=True)["distance"]
+    assert np.all(fast >= exact - 1e-12)
+    assert np.mean(fast - exact > 1e-6) < 0.02
+
+
+def test_cli_writes_readable_stage(tmp_path, usd_dir):
+    from wearfit_usd.cli import main
+    from wearfit_usd.usd_io import read_character
+    out = tmp_path / "fitted.usda"
+    rc = main(["-q", "fit", str(usd_dir / "ref_male.usda"), str(usd_dir / "body_male_cmu_rig.usdc"),
+               "-o", str(out)])
+    assert rc == 0
+    ref = read_character(usd_dir / "ref_male.usda")
+    tgt = read_character(usd_dir / "body_male_cmu_rig.usdc")
+    got = read_character(out)
+    assert np.array_equal(got.body.faces, ref.body.faces)
+    assert got.skeleton.joint_names == ref.skeleton.joint_names  # reference rig kept
+    assert np.array_equal(got.body.joint_indices, ref.body.joint_indices)
+    assert np.allclose(got.body.points, tgt.body.points, atol=1e-6)  # same topology: exact
+    assert got.up_axis == tgt.up_axis
+
+
+def test_cli_missing_file_exit_2(tmp_path, usd_dir, capsys):
+    from wearfit_usd.cli import main
+    out = tmp_path / "x.usda"
+    rc = main(["fit", str(usd_dir / "ref_male.usda"), str(tmp_path / "missing.usdc"), "-o", str(out)])
+    assert rc == 2
+    assert "missing.usdc: file not found" in capsys.readouterr().err
+    assert not out.exists()
