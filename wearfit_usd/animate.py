@@ -24,10 +24,10 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .clearance import SurfaceQuery, vertex_normals
+from .clearance import SurfaceQuery, VertexNormals
 from .model import Character, Mesh
 from .progress import info, progress, warn
-from .skinning import skin_points, skinning_matrices
+from .skinning import Skinner, skin_points, skinning_matrices
 
 
 @dataclass
@@ -67,50 +67,61 @@ class PenetrationGuard:
     """Per-frame push-out of item vertices that sink into the moving body.
 
     Built once on the dressed frame: every item vertex keeps its clearance
-    ``c0`` (signed distance to the body at frame 0). Each frame it finds the
-    vertices whose distance fell below ``min(c0, margin)`` — cheaply, through
-    the nearest body vertex and its normal, then exactly (closest point) for
-    the few suspects — and moves them out along the body normal.
-    Temporal coherence: the push applied to a vertex decays geometrically
-    (``decay`` per frame) instead of switching off, so it never pops.
+    ``c0`` (signed distance to the body at frame 0) and its 8 nearest body
+    triangles. Each frame, one KD-tree over the body vertices gives a cheap
+    clearance estimate (nearest vertex and its normal); the suspects (estimate
+    2 mm below its frame-0 value or under the margin, or still pushed) get
+    the exact closest point among their frame-0 triangles and the triangles
+    around their nearest vertex now (so a limb pressing into the torso is
+    seen), and are moved out along the surface normal to their clearance.
+    Temporal coherence: a push decays geometrically (``decay`` per frame)
+    instead of switching off, so vertices never pop.
     """
 
     def __init__(self, body_faces: np.ndarray, body_points0: np.ndarray, item_points0: np.ndarray,
                  margin: float = 0.001, decay: float = 0.7):
         self.faces = np.asarray(body_faces)
         self.query = SurfaceQuery(self.faces, body_points0)
+        self.normals = VertexNormals(self.faces, len(body_points0))
         c0 = self.query.signed_distance(item_points0)
+        _, self.cand0 = self.query._ctree.query(item_points0, k=8)
+        self.approx0 = self._estimate(body_points0, item_points0, cKDTree(body_points0))
         self.outside0 = c0 > -margin           # only guard vertices that start outside
         self.target = np.clip(c0, margin, None)  # clearance to restore (>= margin)
         self.margin = margin
         self.decay = decay
         self.push = np.zeros(len(item_points0))   # current push amount (m)
         self.direction = np.zeros((len(item_points0), 3))
+        self.last_tree = None
+
+    def _estimate(self, body_points, item_points, tree):
+        _, vi = tree.query(item_points, k=1)
+        vn = self.normals(body_points)
+        return np.einsum("ij,ij->i", item_points - body_points[vi], vn[vi])
 
     def apply(self, body_points: np.ndarray, item_points: np.ndarray):
-        """Return (corrected item points (M, 3), number of vertices that were
+        """Return (corrected item points (M, 3), number of suspects that were
         inside by more than the margin before correction)."""
         tree = cKDTree(body_points)
-        d, vi = tree.query(item_points, k=1)
-        vn = vertex_normals(body_points, self.faces)
-        approx = np.einsum("ij,ij->i", item_points - body_points[vi], vn[vi])
-        # suspects: clearance (estimated through the nearest body vertex) fell
-        # below half its target plus the margin, or already being pushed
-        suspect = self.outside0 & ((approx < 0.5 * self.target + 2 * self.margin) | (self.push > 1e-5))
+        self.last_tree = tree
+        approx = self._estimate(body_points, item_points, tree)
+        # suspects: the estimated clearance dropped by 2 mm since frame 0 or
+        # is below the margin, or the vertex is still being pushed
+        suspect = self.outside0 & ((approx < self.approx0 - 0.002) | (approx < self.margin)
+                                   | (self.push > 1e-5))
         idx = np.flatnonzero(suspect)
         out = item_points.copy()
         n_inside = 0
         new_push = self.push * self.decay
         if len(idx):
             self.query.update(body_points)
-            res = self.query.closest(item_points[idx])
+            self.query.set_vertex_tree(tree)
+            res = self.query.closest(item_points[idx], candidates=self.cand0[idx])
             dist = res["distance"]
             n = res["normal"]
             n = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
             n_inside = int(np.sum(dist < -self.margin))
-            need = np.maximum(self.target[idx] - dist, 0.0)
-            need = np.where(dist < self.target[idx], need, 0.0)
-            # only push vertices that are really close or already pushed
+            need = np.where(dist < self.target[idx], self.target[idx] - dist, 0.0)
             amount = np.maximum(need, new_push[idx])
             new_push[idx] = amount
             self.direction[idx] = n
@@ -162,7 +173,8 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
 
     # 2./3. dress frame 0 -----------------------------------------------------
     t0 = time.perf_counter()
-    body0 = skin_points(body.points, body.joint_indices, body.joint_weights, skin_mats[0])
+    body_skinner = Skinner(body.points, body.joint_indices, body.joint_weights, target.skeleton.n_joints)
+    body0 = body_skinner(skin_mats[0])
     if opt.mode == "lbs":
         items_rest, dress_timings = dress_items(reference, target, k=opt.k)
     else:
@@ -227,8 +239,7 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
         t_write += time.perf_counter() - tw
         for f in progress(range(n_frames), total=n_frames, desc="animate", unit="frame"):
             ta = time.perf_counter()
-            body_f = body0 if f == 0 else skin_points(body.points, body.joint_indices, body.joint_weights,
-                                                      skin_mats[f])
+            body_f = body0 if f == 0 else body_skinner(skin_mats[f])
             tb = time.perf_counter()
             pts = evaluator(f, body_f)
             tc = time.perf_counter()
@@ -262,19 +273,21 @@ def _inside_fraction(guard: PenetrationGuard, body_points, pts) -> float:
     tree = cKDTree(body_points)
     d, _ = tree.query(pts, k=1)
     near = np.flatnonzero(guard.outside0 & (d < 0.05))
+    guard.query.update(body_points)
+    guard.query.set_vertex_tree(tree)
     if len(near) == 0:
         return 0.0
-    guard.query.update(body_points)
-    sd = guard.query.signed_distance(pts[near])
+    sd = guard.query.closest(pts[near], candidates=guard.cand0[near])["distance"]
     return float(np.sum(sd < -guard.margin)) / max(int(guard.outside0.sum()), 1)
 
 
 class _LBSEvaluator:
     def __init__(self, points, ji, jw, skin_mats):
-        self.points, self.ji, self.jw, self.mats = points, ji, jw, skin_mats
+        self.skinner = Skinner(points, ji, jw, skin_mats.shape[-3])
+        self.mats = skin_mats
 
     def __call__(self, f, body_f):
-        return skin_points(self.points, self.ji, self.jw, self.mats[f])
+        return self.skinner(self.mats[f])
 
 
 def dress_items(reference: Character, target: Character, k: int = 5):

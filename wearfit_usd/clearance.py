@@ -12,6 +12,7 @@ the points (metres internally).
 from __future__ import annotations
 
 import numpy as np
+import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
 # feature codes returned by closest_point_on_triangles
@@ -88,12 +89,23 @@ def face_normals(points: np.ndarray, faces: np.ndarray, unit: bool = True) -> np
 
 def vertex_normals(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """(N, 3) area-weighted unit vertex normals."""
-    fn = face_normals(points, faces, unit=False)
-    vn = np.zeros_like(points, dtype=np.float64)
-    for c in range(3):
-        np.add.at(vn, faces[:, c], fn)
-    ln = np.linalg.norm(vn, axis=1, keepdims=True)
-    return vn / np.where(ln < 1e-300, 1.0, ln)
+    return VertexNormals(faces, len(points))(points)
+
+
+class VertexNormals:
+    """Area-weighted unit vertex normals as a sparse operator built once per
+    topology: ``VertexNormals(faces, n)(points) -> (n, 3)``."""
+
+    def __init__(self, faces: np.ndarray, n_vertices: int):
+        self.faces = np.asarray(faces, dtype=np.int64)
+        t = len(self.faces)
+        self.incidence = sp.csr_matrix(
+            (np.ones(3 * t), (self.faces.ravel(), np.repeat(np.arange(t), 3))), shape=(n_vertices, t))
+
+    def __call__(self, points: np.ndarray) -> np.ndarray:
+        vn = self.incidence @ face_normals(points, self.faces, unit=False)
+        ln = np.linalg.norm(vn, axis=1, keepdims=True)
+        return vn / np.where(ln < 1e-300, 1.0, ln)
 
 
 class SurfaceQuery:
@@ -113,12 +125,20 @@ class SurfaceQuery:
         _, self._edge_id = np.unique(e, axis=0, return_inverse=True)
         self._edge_id = self._edge_id.reshape(t, 3)
         self._n_edges = int(self._edge_id.max()) + 1
-        self._ring = _vertex_face_ring(self.faces, int(self.faces.max()) + 1 if t else 0)
+        nv = int(self.faces.max()) + 1 if t else 0
+        self._ring = _vertex_face_ring(self.faces, nv)
+        self._edge_inc = sp.csr_matrix((np.ones(3 * t), (self._edge_id.ravel(), np.repeat(np.arange(t), 3))),
+                                       shape=(self._n_edges, t))
+        # corner c of face f is column 3 f + c
+        self._corner_inc = sp.csr_matrix((np.ones(3 * t), (self.faces.ravel(), np.arange(3 * t))),
+                                         shape=(nv, 3 * t))
         self.points = None
         if points is not None:
             self.update(points)
 
     def update(self, points: np.ndarray) -> "SurfaceQuery":
+        """Move the surface to (N, 3) points. Normals are recomputed now
+        (sparse products); the KD-trees lazily, on the next query."""
         p = np.asarray(points, dtype=np.float64)
         f = self.faces
         self.points = p
@@ -126,26 +146,37 @@ class SurfaceQuery:
         fn = face_normals(p, f, unit=True)
         self.face_normal = fn
         # edge pseudo-normals: sum of the adjacent faces' unit normals
-        en = np.zeros((self._n_edges, 3))
-        for k in range(3):
-            np.add.at(en, self._edge_id[:, k], fn)
-        self.edge_normal = en
+        self.edge_normal = self._edge_inc @ fn
         # vertex pseudo-normals: angle-weighted face normals
-        vn = np.zeros_like(p)
-        for k in range(3):
-            e1 = tri[:, (k + 1) % 3] - tri[:, k]
-            e2 = tri[:, (k + 2) % 3] - tri[:, k]
-            cosang = np.einsum("ij,ij->i", e1, e2) / np.maximum(
-                np.linalg.norm(e1, axis=1) * np.linalg.norm(e2, axis=1), 1e-300)
-            ang = np.arccos(np.clip(cosang, -1.0, 1.0))
-            np.add.at(vn, f[:, k], fn * ang[:, None])
-        self.vertex_normal = vn
+        e1 = np.roll(tri, -1, axis=1) - tri      # corner c: edge to c+1
+        e2 = np.roll(tri, -2, axis=1) - tri      # corner c: edge to c+2
+        cosang = np.einsum("tcj,tcj->tc", e1, e2) / np.maximum(
+            np.linalg.norm(e1, axis=2) * np.linalg.norm(e2, axis=2), 1e-300)
+        ang = np.arccos(np.clip(cosang, -1.0, 1.0))  # (T, 3)
+        self.vertex_normal = self._corner_inc @ (fn[:, None, :] * ang[:, :, None]).reshape(-1, 3)
         self.centroids = tri.mean(axis=1)
-        self._ctree = cKDTree(self.centroids)
-        self._vtree = cKDTree(p)
+        self._ctree_cache = None
+        self._vtree_cache = None
         return self
 
-    def closest(self, query: np.ndarray, k: int = 8, chunk: int = 32768):
+    @property
+    def _ctree(self):
+        if self._ctree_cache is None:
+            self._ctree_cache = cKDTree(self.centroids)
+        return self._ctree_cache
+
+    @property
+    def _vtree(self):
+        if self._vtree_cache is None:
+            self._vtree_cache = cKDTree(self.points)
+        return self._vtree_cache
+
+    def set_vertex_tree(self, tree: cKDTree) -> None:
+        """Reuse a KD-tree over the current points built elsewhere."""
+        self._vtree_cache = tree
+
+    def closest(self, query: np.ndarray, k: int = 8, chunk: int = 32768,
+                candidates: np.ndarray | None = None):
         """Closest surface points to (M, 3) ``query``.
 
         Returns a dict with ``distance`` (M,) signed (positive outside),
@@ -155,7 +186,9 @@ class SurfaceQuery:
         Candidates: the ``k`` triangles with the nearest centroids plus every
         triangle around the nearest vertex. On body-like meshes this finds the
         true closest triangle (tested against brute force); it is not a
-        guarantee for meshes with huge, sliver triangles.
+        guarantee for meshes with huge, sliver triangles. ``candidates``
+        (M, c) triangle indices replace the centroid search (then only the
+        vertex tree is needed: cheap per animation frame).
         """
         q = np.asarray(query, dtype=np.float64)
         m = len(q)
@@ -166,15 +199,16 @@ class SurfaceQuery:
         out_n = np.empty((m, 3))
         for s in range(0, m, chunk):
             sl = slice(s, min(m, s + chunk))
-            res = self._closest_block(q[sl], k)
+            res = self._closest_block(q[sl], k, None if candidates is None else candidates[sl])
             out_d[sl], out_p[sl], out_t[sl], out_b[sl], out_n[sl] = res
         return {"distance": out_d, "point": out_p, "triangle": out_t, "bary": out_b, "normal": out_n}
 
-    def _closest_block(self, q, k):
-        k = min(k, len(self.faces))
-        _, ci = self._ctree.query(q, k=k)
-        if k == 1:
-            ci = ci[:, None]
+    def _closest_block(self, q, k, ci=None):
+        if ci is None:
+            k = min(k, len(self.faces))
+            _, ci = self._ctree.query(q, k=k)
+            if k == 1:
+                ci = ci[:, None]
         _, vi = self._vtree.query(q, k=1)
         cand = np.concatenate([ci, self._ring[vi]], axis=1)
         d, cp, bary, feat, tri_idx = self._eval_candidates(q, cand)

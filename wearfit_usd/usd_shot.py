@@ -82,6 +82,8 @@ class ShotWriter:
         _author_body(self.layout, target.body, target.skeleton)
         UsdGeom.Xform.Define(self.stage, self.layout.items_path)
         self._item_prims = []
+        from .clearance import VertexNormals
+        self._normals = [VertexNormals(m.faces, m.n_points) for m in self.items]
         names = set()
         for item in self.items:
             name = _safe_name(item.name)
@@ -195,7 +197,7 @@ class ShotWriter:
             ext = mesh.GetExtentAttr() or mesh.CreateExtentAttr()
             ext.Set(_extent(p), frame)
             if item.normals_interpolation is not None:
-                n = vertex_normals(p, item.faces) * (-1 if item.left_handed else 1)
+                n = self._normals[i](p) * (-1 if item.left_handed else 1)
                 na = mesh.GetNormalsAttr() or mesh.CreateNormalsAttr()
                 na.Set(_vt_points(n), frame)
                 mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
