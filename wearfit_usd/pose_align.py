@@ -38,7 +38,10 @@ def _normalise_mapping(result, source_names, target_names) -> list[tuple[int, in
         return table.get(str(v))
 
     pairs = []
-    if isinstance(result, dict):
+    if hasattr(result, "pairs") and isinstance(result.pairs, dict):
+        # joint_maps.JointMapping: pairs = {target name: source name}
+        items = [(s, t) for t, s in result.pairs.items()]
+    elif isinstance(result, dict):
         items = result.items()
     elif hasattr(result, "pairs"):
         items = result.pairs
