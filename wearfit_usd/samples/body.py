@@ -73,7 +73,7 @@ class BodyParams:
 PRESETS: dict[str, BodyParams] = {
     "reference": BodyParams(),
     "tall_thin": BodyParams(height=1.92, girth=0.82, shoulders=0.95, hips=0.92),
-    "short_heavy": BodyParams(height=1.58, girth=1.25, shoulders=1.05, hips=1.18, belly=1.0),
+    "short_heavy": BodyParams(height=1.58, girth=1.22, shoulders=1.05, hips=1.18, belly=1.0),
     "broad_shoulders": BodyParams(height=1.80, girth=1.08, shoulders=1.25, hips=0.95),
     "curvy_remeshed": BodyParams(height=1.66, girth=0.97, shoulders=0.9, hips=1.2, bust=1.0),
 }
@@ -134,7 +134,8 @@ def layout(params: BodyParams | None = None) -> BodyLayout:
     for side, sx in (("l", 1.0), ("r", -1.0)):
         d = arm_dir * [sx, 1, 1]
         J[f"clavicle_{side}"] = v(sx * 0.02, 1.425, -0.01)
-        J[f"upperarm_{side}"] = v(sx * 0.17 * sh, 1.405, -0.03)
+        # heavier bodies carry their arms farther out (keeps the armpit open)
+        J[f"upperarm_{side}"] = v(sx * (0.17 * sh + 0.15 * (g - 1.0)), 1.405, -0.03)
         J[f"lowerarm_{side}"] = J[f"upperarm_{side}"] + upper * d
         J[f"hand_{side}"] = J[f"lowerarm_{side}"] + fore * d
         tips[f"hand_{side}"] = J[f"hand_{side}"] + hand * d
@@ -157,8 +158,9 @@ def layout(params: BodyParams | None = None) -> BodyLayout:
                                np.asarray(scale, float), blend))
 
     # torso: stacked round cones with elliptical sections, one per spine bone
-    wx = lambda k: (1.0 + k * (hp - 1.0))  # noqa: E731  hip influence fading up the torso
-    qx = lambda k: (1.0 + k * (sh - 1.0))  # noqa: E731  shoulder influence
+    gw = g ** -0.35  # girth grows the torso more in depth than in width
+    wx = lambda k: (1.0 + k * (hp - 1.0)) * gw  # noqa: E731  hip influence fading up the torso
+    qx = lambda k: (1.0 + k * (sh - 1.0)) * gw  # noqa: E731  shoulder influence
     cone(v(0, 0.885, -0.01), v(0, 1.03, -0.012), 0.102 * g, 0.092 * g, "pelvis",
          scale=(1.62 * wx(1.0), 1, 1.0))
     cone(v(0, 1.03, -0.012), v(0, 1.13, -0.016), 0.092 * g, 0.094 * g, "spine_01",
