@@ -254,7 +254,7 @@ def layout(params: BodyParams | None = None) -> BodyLayout:
         "arm_dir_l": arm_dir, "arm_dir_r": arm_dir * [-1, 1, 1],
         "scale": s,
     }
-    return BodyLayout(P, J, tips, L, Solid(prims, blend=0.028 * s, band=0.1))
+    return BodyLayout(P, J, tips, L, Solid(prims, blend=0.028 * s, band=0.06))
 
 
 # --------------------------------------------------------------------------
@@ -400,7 +400,7 @@ def morph_body(reference: Character, params: BodyParams | str, relax_iters: int 
     ph = np.concatenate([body.points, np.ones((body.n_points, 1))], axis=1)
     blended = np.einsum("nk,nkij->nij", body.joint_weights, mats[body.joint_indices])
     pts = np.einsum("ni,nij->nj", ph, blended)[:, :3]
-    pts = tgt_lay.solid.project(pts, 0.0, iters=6)
+    pts = tgt_lay.solid.project(pts, 0.0, iters=5)
     quads = body.face_vertex_indices.reshape(-1, 4)
     pts = relax_on_surface(tgt_lay.solid, pts, quads, 0.0, iters=relax_iters)
     return _character(tgt_lay, pts, quads, name, weights=(body.joint_indices.copy(),

@@ -42,28 +42,38 @@ class Primitive:
         hi = np.maximum(self.a, self.b) + ext + margin
         return lo, hi
 
+    def _setup(self):
+        s = np.asarray(self.scale, float)
+        self._m = np.ascontiguousarray(self.frame.T / s)  # world offset -> scaled local
+        tip = (self.b - self.a) @ self._m
+        self._len = float(np.linalg.norm(tip))
+        self._u = tip / self._len if self._len > 1e-9 else np.zeros(3)
+        sin_a = (self.ra - self.rb) / self._len if self._len > 1e-9 else 0.0
+        self._sin, self._cos = sin_a, float(np.sqrt(max(1.0 - sin_a * sin_a, 0.0)))
+        self._k = float(s.min())
+
     def evaluate(self, p: np.ndarray) -> np.ndarray:
         """(M, 3) points -> (M,) 1-Lipschitz lower bound of the signed distance."""
-        s = self.scale
-        q = ((p - self.a) @ self.frame.T) / s
-        tip = ((self.b - self.a) @ self.frame.T) / s
-        length = float(np.linalg.norm(tip))
-        if length < 1e-9:  # sphere (ellipsoid after scaling)
-            d = np.linalg.norm(q, axis=1) - self.ra
-        else:
-            u = tip / length
-            t = q @ u
-            rho = np.linalg.norm(q - t[:, None] * u, axis=1)
-            sin_a = (self.ra - self.rb) / length
-            cos_a = np.sqrt(max(1.0 - sin_a * sin_a, 0.0))
-            # m = tangent-line direction in the (t, rho) half plane
-            along1 = t * cos_a - rho * sin_a
-            along2 = (t - length) * cos_a - rho * sin_a
-            d_side = t * sin_a + rho * cos_a - self.ra
-            d1 = np.hypot(t, rho) - self.ra
-            d2 = np.hypot(t - length, rho) - self.rb
-            d = np.where(along1 < 0, d1, np.where(along2 > 0, d2, d_side))
-        return d * float(s.min())
+        if not hasattr(self, "_m"):
+            self._setup()
+        q = (p - self.a) @ self._m
+        q2 = np.einsum("ij,ij->i", q, q)
+        if self._len < 1e-9:  # sphere (ellipsoid after scaling)
+            return (np.sqrt(q2) - self.ra) * self._k
+        t = q @ self._u
+        rho = np.sqrt(np.maximum(q2 - t * t, 0.0))
+        L, sa, ca = self._len, self._sin, self._cos
+        # (t, rho) half plane: cap 1 before the first tangent point, cap 2 after
+        # the second, the cone side in between
+        d = t * sa + rho * ca - self.ra
+        cap1 = t * ca - rho * sa < 0
+        cap2 = (t - L) * ca - rho * sa > 0
+        if cap1.any():
+            d[cap1] = np.sqrt(q2[cap1]) - self.ra
+        if cap2.any():
+            tl = t[cap2] - L
+            d[cap2] = np.sqrt(tl * tl + rho[cap2] ** 2) - self.rb
+        return d * self._k
 
 
 def smooth_min(a: np.ndarray, b: np.ndarray, k: float) -> np.ndarray:

@@ -212,7 +212,7 @@ def _offset_patch(name: str, body: Mesh, solid: Solid, clearance: float, parts, 
     q = remap[qk]
     src = p0[used]
     nrm = vertex_normals(body.points, body.faces)[used]
-    pts = solid.project(src + clearance * nrm, clearance, iters=5)
+    pts = solid.project(src + clearance * nrm, clearance, iters=3)
     # boundary vertices: on an edge used by one quad only
     e = np.sort(np.stack([q, np.roll(q, -1, 1)], -1).reshape(-1, 2), axis=1)
     ue, cnt = np.unique(e, axis=0, return_counts=True)
@@ -223,7 +223,7 @@ def _offset_patch(name: str, body: Mesh, solid: Solid, clearance: float, parts, 
     if all_planes and len(bnd):
         normals = np.stack([n for n, _ in all_planes])
         ds = np.array([d for _, d in all_planes])
-        for _ in range(3):
+        for _ in range(2):
             pb = pts[bnd]
             gap = pb @ normals.T - ds  # (B, P) <= 0 inside
             k = np.argmax(np.where(np.abs(gap) < snap, gap, -np.inf), axis=1)
@@ -239,7 +239,7 @@ def _offset_patch(name: str, body: Mesh, solid: Solid, clearance: float, parts, 
             pts[bnd] = solid.project(pb, clearance, iters=3)
     fixed = np.zeros(len(pts), bool)
     fixed[bnd] = True
-    pts = relax_on_surface(solid, pts, q, clearance, iters=3, amount=0.4, fixed=fixed)
+    pts = relax_on_surface(solid, pts, q, clearance, iters=2, amount=0.4, fixed=fixed)
     pts[bnd] = solid.project(pts[bnd], clearance, iters=3)
     # cylindrical UVs about the body's vertical axis
     u = np.arctan2(pts[:, 0], pts[:, 2]) / (2 * np.pi) + 0.5
