@@ -52,44 +52,9 @@ def _proxy_for(item, proxies):
     return None
 
 
-def _frames(points, faces):
-    """Orthonormal frame (T, 3, 3) per triangle: rows e1/|e1|, n, e1 x n."""
-    e1 = points[faces[:, 1]] - points[faces[:, 0]]
-    e2 = points[faces[:, 2]] - points[faces[:, 0]]
-    n = np.cross(e1, e2)
-    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-    e1 = e1 / np.maximum(np.linalg.norm(e1, axis=1, keepdims=True), 1e-300)
-    return np.stack([e1, n, np.cross(e1, n)], axis=1)
-
-
-def _quality(ref_pts, new_pts, faces, tri0, ref_body, fit_body, body_faces):
-    """Flipped item triangles (%) and item edges stretched beyond the body's
-    local stretch (%)."""
-    from wearfit_usd.redress import edges
-    fr, ft = _frames(ref_body, body_faces), _frames(fit_body, body_faces)
-    t = tri0[faces[:, 0]]  # body triangle bound first to each item triangle's first vertex
-    rot = np.einsum("tji,tjk->tik", fr[t], ft[t])  # row-vector rotation ref -> target
-    def nrm(p):
-        n = np.cross(p[faces[:, 1]] - p[faces[:, 0]], p[faces[:, 2]] - p[faces[:, 0]])
-        return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-    nr, nt = nrm(ref_pts), nrm(new_pts)
-    ok = np.linalg.norm(np.cross(ref_pts[faces[:, 1]] - ref_pts[faces[:, 0]],
-                                 ref_pts[faces[:, 2]] - ref_pts[faces[:, 0]]), axis=1) > 1e-12
-    flipped = (np.einsum("ti,tij,tj->t", nr, rot, nt) < 0) & ok
-    e = edges(faces)
-    lr = np.linalg.norm(ref_pts[e[:, 0]] - ref_pts[e[:, 1]], axis=1)
-    lt = np.linalg.norm(new_pts[e[:, 0]] - new_pts[e[:, 1]], axis=1)
-    ratio = lt / np.maximum(lr, 1e-12)
-    bf = body_faces[tri0[e[:, 0]]]
-    br = np.stack([np.linalg.norm(fit_body[bf[:, i]] - fit_body[bf[:, (i + 1) % 3]], axis=1)
-                   / np.linalg.norm(ref_body[bf[:, i]] - ref_body[bf[:, (i + 1) % 3]], axis=1)
-                   for i in range(3)], axis=1)
-    out = (ratio < 0.8 * br.min(axis=1)) | (ratio > 1.25 * br.max(axis=1))
-    return 100.0 * flipped[ok].mean(), 100.0 * out.mean()
-
-
 def run(full: bool, out_dir: Path) -> list[dict]:
     from wearfit_usd.clearance import SurfaceQuery
+    from wearfit_usd.metrics import clearance_change, flip_and_stretch
     from wearfit_usd.mhclo import fit as mh_fit, shape_points, to_internal
     from wearfit_usd.redress import apply, fitted_body_points, plan
     from wearfit_usd.usd_io import read_character
@@ -131,23 +96,20 @@ def run(full: bool, out_dir: Path) -> list[dict]:
             for i, (item, sl) in enumerate(zip(pl.items, pl.item_slices())):
                 p = pts[sl]
                 dr, dt = ref_d[i], qt.signed_distance(p)
-                ch = np.abs(dt - dr)
-                flip, stretch = _quality(item.points, p, item.faces, pl.binding.triangles[sl, 0],
-                                         ref.body.points, body, ref.body.faces)
+                flip, stretch = flip_and_stretch(item.points, p, item.faces, pl.binding.triangles[sl, 0],
+                                                 ref.body.points, body, ref.body.faces)
                 row = {**base, "item": item.name, "verts": item.n_points,
                        "rigid": item.name in pl.rigid_items,
-                       "new_pen_pct": round(100 * float(np.mean((dr > 0) & (dt < -0.001))), 3),
-                       "clear_med_mm": round(float(np.median(ch)) * 1000, 3),
-                       "clear_p95_mm": round(float(np.percentile(ch, 95)) * 1000, 3),
+                       **{k: round(v, 3) for k, v in clearance_change(dr, dt).items()},
                        "flipped_pct": round(flip, 3), "overstretch_pct": round(stretch, 3),
                        "pushed": int(moved[sl].sum())}
                 px = _proxy_for(item, proxies)
                 if mh_base is not None and px is not None:
                     mp = to_internal(mh_fit(px, mh_base))
-                    dm = qt.signed_distance(mp)
-                    row.update({"mh_new_pen_pct": round(100 * float(np.mean((dr > 0) & (dm < -0.001))), 3),
-                                "mh_clear_med_mm": round(float(np.median(np.abs(dm - dr))) * 1000, 3),
-                                "mh_clear_p95_mm": round(float(np.percentile(np.abs(dm - dr), 95)) * 1000, 3),
+                    mh = clearance_change(dr, qt.signed_distance(mp))
+                    row.update({"mh_new_pen_pct": round(mh["new_pen_pct"], 3),
+                                "mh_clear_med_mm": round(mh["clear_med_mm"], 3),
+                                "mh_clear_p95_mm": round(mh["clear_p95_mm"], 3),
                                 "dist_to_mh_mean_mm": round(float(np.linalg.norm(p - mp, axis=1).mean()) * 1000, 3)})
                 if body_err is not None:
                     row["mh_body_recipe_err_mm"] = round(body_err, 6)
