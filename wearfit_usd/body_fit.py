@@ -60,7 +60,7 @@ class FitOptions:
     w_smooth: float = 1.0
     w_identity: float = 0.01
     levels: tuple = ((0.02, 0.06), (0.1, 0.04), (0.5, 0.025), (2.5, 0.015), (12.0, 0.01))
-    iterations_per_level: int = 3
+    iterations_per_level: int = 2
     backward_weight: float = 1.0       # target -> reference correspondences
     unmatched_weight: float = 1e-3     # pull of unmatched vertices to their place (x w_c)
     normal_angle_deg: float = 60.0     # max angle between matched normals
