@@ -79,11 +79,16 @@ def closest_point_on_triangles(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: n
 
 def face_normals(points: np.ndarray, faces: np.ndarray, unit: bool = True) -> np.ndarray:
     """(T, 3) triangle normals (unit, or area-weighted x2 if not unit)."""
-    tri = points[faces]
-    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    p0 = points[faces[:, 0]]
+    a = points[faces[:, 1]] - p0
+    b = points[faces[:, 2]] - p0
+    n = np.empty_like(a)
+    n[:, 0] = a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1]
+    n[:, 1] = a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2]
+    n[:, 2] = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
     if unit:
-        ln = np.linalg.norm(n, axis=1, keepdims=True)
-        n = n / np.where(ln < 1e-300, 1.0, ln)
+        ln = np.sqrt(np.einsum("ij,ij->i", n, n))[:, None]
+        n /= np.where(ln < 1e-300, 1.0, ln)
     return n
 
 
@@ -127,6 +132,8 @@ class SurfaceQuery:
         self._n_edges = int(self._edge_id.max()) + 1
         nv = int(self.faces.max()) + 1 if t else 0
         self._ring = _vertex_face_ring(self.faces, nv)
+        self._vertex_normal = None
+        self._centroids = None
         self._edge_inc = sp.csr_matrix((np.ones(3 * t), (self._edge_id.ravel(), np.repeat(np.arange(t), 3))),
                                        shape=(self._n_edges, t))
         # corner c of face f is column 3 f + c
@@ -137,27 +144,56 @@ class SurfaceQuery:
             self.update(points)
 
     def update(self, points: np.ndarray) -> "SurfaceQuery":
-        """Move the surface to (N, 3) points. Normals are recomputed now
-        (sparse products); the KD-trees lazily, on the next query."""
+        """Move the surface to (N, 3) points. Face and edge normals are
+        recomputed now; vertex pseudo-normals and the KD-trees lazily, for
+        what the next queries need."""
         p = np.asarray(points, dtype=np.float64)
-        f = self.faces
         self.points = p
-        tri = p[f]
-        fn = face_normals(p, f, unit=True)
+        fn = face_normals(p, self.faces, unit=True)
         self.face_normal = fn
         # edge pseudo-normals: sum of the adjacent faces' unit normals
         self.edge_normal = self._edge_inc @ fn
-        # vertex pseudo-normals: angle-weighted face normals
+        self._vertex_normal = None
+        self._centroids = None
+        self._ctree_cache = None
+        self._vtree_cache = None
+        return self
+
+    @property
+    def centroids(self) -> np.ndarray:
+        if self._centroids is None:
+            self._centroids = self.points[self.faces].mean(axis=1)
+        return self._centroids
+
+    @property
+    def vertex_normal(self) -> np.ndarray:
+        """(N, 3) angle-weighted vertex pseudo-normals (not unit)."""
+        if self._vertex_normal is None:
+            self._vertex_normal = self._corner_inc @ self._corner_normals(np.arange(len(self.faces)))
+        return self._vertex_normal
+
+    def _corner_normals(self, tris: np.ndarray) -> np.ndarray:
+        """(len(tris) * 3, 3) face normal times corner angle, corners in order."""
+        tri = self.points[self.faces[tris]]
         e1 = np.roll(tri, -1, axis=1) - tri      # corner c: edge to c+1
         e2 = np.roll(tri, -2, axis=1) - tri      # corner c: edge to c+2
         cosang = np.einsum("tcj,tcj->tc", e1, e2) / np.maximum(
             np.linalg.norm(e1, axis=2) * np.linalg.norm(e2, axis=2), 1e-300)
-        ang = np.arccos(np.clip(cosang, -1.0, 1.0))  # (T, 3)
-        self.vertex_normal = self._corner_inc @ (fn[:, None, :] * ang[:, :, None]).reshape(-1, 3)
-        self.centroids = tri.mean(axis=1)
-        self._ctree_cache = None
-        self._vtree_cache = None
-        return self
+        ang = np.arccos(np.clip(cosang, -1.0, 1.0))  # (t, 3)
+        return (self.face_normal[tris][:, None, :] * ang[:, :, None]).reshape(-1, 3)
+
+    def _vertex_normals_of(self, verts: np.ndarray) -> np.ndarray:
+        """Angle-weighted pseudo-normals of a few vertices (through their
+        one-ring), without computing them for the whole mesh."""
+        if self._vertex_normal is not None:
+            return self._vertex_normal[verts]
+        uniq, inv = np.unique(verts, return_inverse=True)
+        ring = self._ring[uniq]                         # (U, w) triangles, padded by repeats
+        first = np.concatenate([np.ones((len(uniq), 1), bool), ring[:, 1:] != ring[:, :1]], axis=1)
+        cn = self._corner_normals(ring.ravel()).reshape(len(uniq), ring.shape[1], 3, 3)
+        corner = self.faces[ring] == uniq[:, None, None]  # (U, w, 3): which corner is the vertex
+        vn = np.einsum("uwc,uwcj->uj", corner * first[:, :, None], cn)
+        return vn[inv]
 
     @property
     def _ctree(self):
@@ -206,10 +242,10 @@ class SurfaceQuery:
     def _closest_block(self, q, k, ci=None):
         if ci is None:
             k = min(k, len(self.faces))
-            _, ci = self._ctree.query(q, k=k)
+            _, ci = self._ctree.query(q, k=k, workers=-1)
             if k == 1:
                 ci = ci[:, None]
-        _, vi = self._vtree.query(q, k=1)
+        _, vi = self._vtree.query(q, k=1, workers=-1)
         cand = np.concatenate([ci, self._ring[vi]], axis=1)
         d, cp, bary, feat, tri_idx = self._eval_candidates(q, cand)
         n = self._feature_normal(tri_idx, feat)
@@ -237,7 +273,7 @@ class SurfaceQuery:
         for code, k in ((VERT0, 0), (VERT1, 1), (VERT2, 2)):
             m = feat == code
             if m.any():
-                n[m] = self.vertex_normal[f[m, k]]
+                n[m] = self._vertex_normals_of(f[m, k])
         return n
 
     def signed_distance(self, query: np.ndarray) -> np.ndarray:
