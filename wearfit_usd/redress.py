@@ -26,7 +26,7 @@ from scipy.spatial import cKDTree
 
 from . import regions as R
 from .binding import Binding, bind, local_signed_distance
-from .clearance import SurfaceQuery
+from .clearance import SurfaceQuery, VertexNormals
 from .errors import GeometryError, InputError
 from .model import Character, Mesh
 from .progress import debug, warn
@@ -378,6 +378,12 @@ def apply(plan_: DressPlan, body_points: np.ndarray, body_faces: np.ndarray,
         cand = d_loc < margin
         dn, vn = cKDTree(body_points).query(pts, k=1)
         cand |= (plan_.body_labels[vn] != plan_.labels) & (dn < near_other)
+        # a bulge of the same region (a heavier belly or thigh under a loose
+        # skirt) is far from the vertex's own triangles: estimate the
+        # clearance through the nearest body vertex and its normal too
+        normals = VertexNormals(body_faces, len(body_points))(body_points)
+        est = np.einsum("ij,ij->i", pts - body_points[vn], normals[vn])
+        cand |= est < margin
         target = np.where(plan_.ref_clearance > 0, plan_.ref_clearance, np.nan)
         debug(f"penetration pass: {int(cand.sum())} of {len(cand)} vertices tested")
         pts, moved = push_out(query, pts, target, mask=cand, neighbours=plan_.neighbours)
