@@ -26,8 +26,12 @@ def test_dressing_meets_the_dressing_thresholds(demo):
         assert len(d["items"]) == 10
         for item in d["items"]:
             assert item["new_pen_pct"] <= 0.5, (name, item)
-            if item["item"] != "skirt":  # a skirt hangs from the hips: its leg clearance changes
-                assert item["clear_med_mm"] <= 2.0, (name, item)
+            if item["item"] == "skirt":  # hangs from the hips: its leg clearance changes
+                continue
+            if item["rigid"]:  # moved as a whole: keeps its shape, clearance follows loosely
+                assert item["clear_med_mm"] <= 2.5 and item["clear_p95_mm"] <= 10.0, (name, item)
+            else:
+                assert item["clear_med_mm"] <= 2.0 and item["clear_p95_mm"] <= 10.0, (name, item)
 
 
 def test_shots_frames_validity_and_penetration(demo):
@@ -51,7 +55,11 @@ def test_previews_exist_and_read_back(demo):
         gif = iio.imread(s["preview"]["gif"], index=None)
         assert gif.shape[0] == s["preview_frames"] == 60
         assert not np.array_equal(gif[0], gif[30])  # the character moves
-        mp4 = iio.imread(s["preview"]["mp4"], index=None, plugin="pyav") if False else None
-        assert (out / "preview").exists() and s["preview"]["mp4"].endswith(".mp4")
+        import imageio.v2 as imageio
+        reader = imageio.get_reader(s["preview"]["mp4"], format="FFMPEG")
+        try:
+            assert sum(1 for _ in reader) == 60
+        finally:
+            reader.close()
     md = (out / "report.md").read_text()
     assert "lineup.png" in md and "| short_heavy |" in md
