@@ -13,8 +13,9 @@ Platform choice happens once, before OpenGL is first imported:
 :class:`Renderer` keeps one pyrender scene alive and, between frames, re-uploads
 only the vertex buffers whose points changed (``glBufferSubData`` into the
 interleaved position/normal/colour buffer that pyrender's ``Primitive`` created)
-instead of rebuilding meshes. Inputs are internal-space numpy arrays (Y up,
-metres); the row-vector camera matrices of :mod:`.camera` are transposed to
+instead of rebuilding meshes, and draws with the light preview shader of
+:mod:`.shading` instead of pyrender's PBR one. Inputs are internal-space
+numpy arrays (Y up, metres); the row-vector camera matrices of :mod:`.camera` are transposed to
 pyrender's column-vector poses only here.
 """
 from __future__ import annotations
@@ -29,6 +30,7 @@ import numpy as np
 from ..progress import debug, info
 from .camera import View
 from .lighting import DEFAULT_RIG, LightRig, light_poses
+from .shading import SHADINGS, make_cache
 
 _PLATFORM: str | None = None   # the platform pyrender was imported for
 _PYRENDER = None                # the imported module
@@ -130,7 +132,7 @@ def create_offscreen(width: int, height: int):
 
 
 def srgb_to_linear(c: np.ndarray) -> np.ndarray:
-    """sRGB 0-1 -> linear 0-1 (pyrender's shader works in linear and writes
+    """sRGB 0-1 -> linear 0-1 (both shaders work in linear and write
     gamma 2.2, so colours given in sRGB come out as chosen)."""
     c = np.asarray(c, dtype=np.float64)
     return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
@@ -189,19 +191,29 @@ class Renderer:
     are re-allocated single-sampled after the first frame.
     ``update="rebuild"`` makes :meth:`set_points` rebuild the pyrender mesh
     instead of updating its vertex buffer (the slow baseline, for benchmarks).
+    ``shading``: ``"preview"`` (default) draws lit meshes with the light
+    per-fragment Lambert/Blinn-Phong shader of :mod:`.shading`, about 2x
+    faster than pyrender's PBR shader under llvmpipe; ``"pbr"`` keeps
+    pyrender's metallic-roughness shader. Either way pyrender's shader
+    program cache is replaced by one that actually hits under OSMesa (see
+    :mod:`.shading`).
     """
 
     def __init__(self, size=(640, 480), background=(0.94, 0.94, 0.95),
                  lights: LightRig = DEFAULT_RIG, update: str = "buffer",
-                 antialias: bool = False):
+                 antialias: bool = False, shading: str = "preview"):
         self.width, self.height = int(size[0]), int(size[1])
         if self.width < 8 or self.height < 8:
             raise ValueError(f"image size {self.width}x{self.height} too small")
         if update not in ("buffer", "rebuild"):
             raise ValueError("update must be 'buffer' or 'rebuild'")
         self.update = update
+        if shading not in SHADINGS:
+            raise ValueError(f"shading must be one of {SHADINGS}, got {shading!r}")
         pr, self._osr, self.platform = create_offscreen(self.width, self.height)
         self._pr = pr
+        self.shading = shading
+        self._osr._renderer._program_cache = make_cache(pr, shading, "fragment")
         self.background = np.asarray(background, dtype=np.float64)
         bg = np.concatenate([self.background, [1.0]])  # glClearColor: no gamma applied
         self.scene = pr.Scene(bg_color=bg.astype(np.float32),
