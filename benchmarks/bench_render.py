@@ -10,7 +10,16 @@ ref_male.usda (body + 5 items, ~52k triangles)
   pyrender Primitive/Mesh is built and uploaded each frame;
 * ``trimesh (naive)``: ``pyrender.Mesh.from_trimesh(trimesh.Trimesh(...))``
   per mesh and frame, the usual pyrender idiom;
-* ``antialias static``: pyrender's 4x multisampling kept (EGL only).
+* ``antialias static``: pyrender's 4x multisampling kept (EGL only);
+* ``pyrender PBR shader``: ``Renderer(shading="pbr")``, pyrender's own
+  metallic-roughness shader instead of the preview shader of
+  :mod:`wearfit_usd.render.shading` (with the fixed program cache);
+* ``before``: pyrender's PBR shader *and* its stock ``ShaderProgramCache``,
+  whose key never matches under OSMesa (every draw compiles its program
+  again): the renderer as it was before the preview shader.
+
+The rebuild/trimesh baselines use the preview shader too, so their ratios
+measure only the update strategy.
 
 All in one process, so the ratios compare like with like.
 Run alone: ``python3 benchmarks/bench_render.py [--full]`` (writes
@@ -48,7 +57,8 @@ def _wobble(points: np.ndarray, k: int) -> np.ndarray:
 class _Case:
     """One renderer set up for a case; :meth:`frame` times one frame."""
 
-    def __init__(self, scene, update: str, changing: bool, antialias: bool):
+    def __init__(self, scene, update: str, changing: bool, antialias: bool,
+                 shading: str = "preview", stock_cache: bool = False):
         from wearfit_usd.render.camera import frame_box
         from wearfit_usd.render.offscreen import Renderer
         self.changing = changing
@@ -56,7 +66,10 @@ class _Case:
         base = [m.frames[0] for m in scene.meshes]
         self.poses = [[_wobble(b, k) for b in base] for k in range(4)] if changing else None
         lo, hi = scene.bounds()
-        self.r = Renderer(SIZE, update="rebuild" if self.trimesh else update, antialias=antialias)
+        self.r = Renderer(SIZE, update="rebuild" if self.trimesh else update, antialias=antialias,
+                          shading=shading)
+        if stock_cache:  # pyrender's own cache (misses on every draw under OSMesa)
+            self.r._osr._renderer._program_cache = self.r._pr.shader_program.ShaderProgramCache()
         self.hs = [self.r.add_mesh(m.name, b, m.faces, color=m.color)
                    for m, b in zip(scene.meshes, base)]
         self.faces = [m.faces for m in scene.meshes]
@@ -104,14 +117,18 @@ def run(full: bool, out_dir: Path) -> list[dict]:
     stage = _data_dir() / "usd" / "ref_male.usda"
     scene = read_scene(stage)
     n = 100 if full else 30
-    specs = [
-        ("static", "buffer", False, False),
-        ("buffer update (changing vertices)", "buffer", True, False),
-        ("rebuild meshes each frame (baseline)", "rebuild", True, False),
-        ("trimesh -> pyrender.Mesh each frame (naive)", "trimesh", True, False),
-        ("antialias 4x, static", "buffer", False, True),
+    specs = [  # name, update, changing, antialias, shading, stock cache
+        ("static", "buffer", False, False, "preview", False),
+        ("buffer update (changing vertices)", "buffer", True, False, "preview", False),
+        ("rebuild meshes each frame (baseline)", "rebuild", True, False, "preview", False),
+        ("trimesh -> pyrender.Mesh each frame (naive)", "trimesh", True, False, "preview", False),
+        ("antialias 4x, static", "buffer", False, True, "preview", False),
+        ("static, pyrender PBR shader", "buffer", False, False, "pbr", False),
+        ("before: static, PBR + stock shader cache", "buffer", False, False, "pbr", True),
+        ("before: buffer update, PBR + stock shader cache", "buffer", True, False, "pbr", True),
     ]
-    cases = [(name, _Case(scene, u, c, aa)) for name, u, c, aa in specs]
+    slow = ("antialias", "before")  # fewer frames per block
+    cases = [(name, _Case(scene, *spec)) for name, *spec in specs]
     try:
         from wearfit_usd.render.media import write_png
         write_png(cases[0][1].first, out_dir / "render_ref_male.png")
@@ -119,7 +136,7 @@ def run(full: bool, out_dir: Path) -> list[dict]:
         block = 5
         for _ in range(0, n, block):
             for name, c in cases:
-                for _ in range(block if not name.startswith("antialias") else 2):
+                for _ in range(block if not name.startswith(slow) else 2):
                     c.frame()
         load1 = os.getloadavg()[0]
         rows = []
@@ -139,6 +156,12 @@ def run(full: bool, out_dir: Path) -> list[dict]:
                  "load_avg_1min": f"{load0:.2f}->{load1:.2f}"})
     rows.append({"case": "speed-up buffer update vs naive trimesh rebuild",
                  "fps": round(rows[1]["fps"] / rows[3]["fps"], 2)})
+    rows.append({"case": "speed-up static: preview shader vs pyrender PBR",
+                 "fps": round(rows[0]["fps"] / rows[5]["fps"], 2)})
+    rows.append({"case": "speed-up static vs before",
+                 "fps": round(rows[0]["fps"] / rows[6]["fps"], 2)})
+    rows.append({"case": "speed-up buffer update vs before",
+                 "fps": round(rows[1]["fps"] / rows[7]["fps"], 2)})
     return rows
 
 

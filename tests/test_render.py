@@ -297,3 +297,62 @@ def test_errors_empty_stage_missing_file_and_bad_frames(tmp_path, animated_stage
     assert main(["render", str(empty), "-o", str(out), "-q"]) == 2
     assert main(["render", str(animated_stage), "-o", str(out), "--camera", "top", "-q"]) == 2
     assert not out.exists() or not any(out.iterdir())
+
+
+# --------------------------------------------------------------------------
+# shading (wearfit_usd.render.shading)
+
+
+def _render_both(scene, yaw=0.0, frames=1):
+    """{shading: (image, renderer program-cache keys)} for one view of ``scene``."""
+    from wearfit_usd.render.camera import frame_box
+    from wearfit_usd.render.offscreen import Renderer
+    lo, hi = scene.bounds()
+    out = {}
+    for shading in ("preview", "pbr"):
+        with Renderer(SIZE, shading=shading) as r:
+            for m in scene.meshes:
+                r.add_mesh(m.name, m.frames[0], m.faces, color=m.color)
+            r.set_view(frame_box(lo, hi, yaw, 10.0, SIZE[0] / SIZE[1]))
+            imgs = [r.render() for _ in range(frames)]
+            out[shading] = (imgs, list(r._osr._renderer._program_cache._program_cache))
+    return out
+
+
+def test_program_cache_hits_and_preview_shader_close_to_pbr(male_scene):
+    res = _render_both(male_scene, frames=3)
+    for shading, (imgs, keys) in res.items():
+        # one lit program for all six meshes and all frames (pyrender's own cache
+        # keyed on OSMesa's context pointer and compiled a program per draw)
+        assert len(keys) == 1, (shading, keys)
+        assert keys[0][0] is (shading == "preview"), keys  # the preview program is the one used
+        assert np.array_equal(imgs[0], imgs[2])
+    prev, pbr = res["preview"][0][0].astype(float), res["pbr"][0][0].astype(float)
+    fg = _foreground(res["pbr"][0][0])
+    diff = np.abs(prev - pbr)[fg]
+    # a different shader: not identical ...
+    assert diff.mean() > 1.0
+    # ... but the same look: same rig, colours and exposure (measured mean 6.6 / 255)
+    assert diff.mean() < 15.0, diff.mean()
+    assert abs(prev[fg].mean() - pbr[fg].mean()) < 15.0
+
+
+def test_back_faces_lit():
+    """A double-sided sheet seen from behind is shaded with the flipped normal,
+    as bright as from the front (the lights follow the camera)."""
+    from wearfit_usd.render.camera import frame_box
+    from wearfit_usd.render.offscreen import Renderer
+    pts = np.array([[-0.5, 0.0, 0.0], [0.5, 0.0, 0.0], [0.5, 1.0, 0.0], [-0.5, 1.0, 0.0]])
+    faces = np.array([[0, 1, 2], [0, 2, 3]])  # normal +Z
+    lo, hi = pts.min(0) - [0, 0, 0.1], pts.max(0) + [0, 0, 0.1]
+    means = []
+    with Renderer((96, 96), background=(0.0, 0.0, 0.0)) as r:
+        r.add_mesh("sheet", pts, faces, color=(0.6, 0.6, 0.6))
+        for yaw in (0.0, 180.0):
+            r.set_view(frame_box(lo, hi, yaw, 0.0, 1.0))
+            img = r.render().astype(float)
+            fg = img.max(axis=2) > 5
+            assert fg.mean() > 0.2, yaw
+            means.append(img[fg].mean())
+    assert min(means) > 60, means
+    assert abs(means[0] - means[1]) < 0.15 * max(means), means
