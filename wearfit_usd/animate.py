@@ -8,9 +8,10 @@ Pipeline (:func:`animate`):
 3. dress frame 0: pose the reference body into frame 0's pose through its own
    rig, fit it onto the target at frame 0 (:mod:`body_fit`) and redress the
    items (:mod:`redress`);
-4. bind the dressed items to the target body at frame 0 and re-evaluate the
-   binding every frame (one sparse product), with a temporally coherent
-   penetration pass where needed (:class:`PenetrationGuard`);
+4. bind the dressed items to the target body at frame 0 (the region-aware
+   plan of :mod:`redress`) and re-evaluate the binding every frame (one
+   sparse product, plus rigid parts and loose-part smoothing), with a
+   temporally coherent penetration pass where needed (:class:`PenetrationGuard`);
 5. stream everything to one USD shot (:class:`usd_shot.ShotWriter`).
 
 ``mode="lbs"`` is the classic baseline instead: skin weights copied from the
@@ -228,9 +229,15 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
                           for i, m in enumerate(items)]
         guard_points0 = evaluator(0, body0)
     else:
-        from .binding import bind
-        binding = bind(body0, body.faces, all0, k=opt.k)
-        evaluator = lambda f, body_f: binding.evaluate(body_f)  # noqa: E731
+        # the dressed items bound to the target at frame 0 with the same
+        # region-aware plan as dressing (skirts from the hips, rigid parts,
+        # loose parts smoothed): a linear evaluation per frame
+        from .redress import apply as apply_plan, plan as plan_dress
+        frame0 = replace(target, body=body.copy_with_points(body0),
+                         skeleton=_posed_skeleton(target.skeleton, world[0]), items=items)
+        frame_plan = plan_dress(frame0, k=opt.k)
+        evaluator = lambda f, body_f: apply_plan(frame_plan, body_f, body.faces,  # noqa: E731
+                                                 penetration=False)[0]
         items_for_skin = []
         guard_points0 = all0
     rep.timings["bind"] = time.perf_counter() - t0

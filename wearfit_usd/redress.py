@@ -83,6 +83,61 @@ def similarity_fit(src: np.ndarray, dst: np.ndarray, weights: np.ndarray | None 
 # --------------------------------------------------------------------------
 # penetration
 
+LOOSE_START = 0.01   # m: vertices farther than this from the body start to be smoothed
+LOOSE_FULL = 0.04    # m: fully smoothed from here on
+LOOSE_ITERATIONS = 40  # diffusion time, in half-steps of neighbour averaging
+
+
+def looseness(ref_clearance: np.ndarray, skirt_mask: np.ndarray | None = None) -> np.ndarray:
+    """(M,) smoothing weight from the reference clearance: 0 up to
+    LOOSE_START, 1 from LOOSE_FULL; skirt-like parts get 1 everywhere."""
+    a = np.clip((np.asarray(ref_clearance) - LOOSE_START) / (LOOSE_FULL - LOOSE_START), 0.0, 1.0)
+    if skirt_mask is not None:
+        a = np.where(skirt_mask, 1.0, a)
+    return a
+
+
+class LooseSmoother:
+    """Smooth the displacement ``points - ref_points`` (M, 3) over the item
+    mesh where ``weight`` (M,) > 0; built once, applied per evaluation.
+
+    Far from the body a vertex's local frames extrapolate: small differences
+    between the frames of its K triangles become large, uneven displacements
+    (a hem that tears or crumples). Diffusing the displacement over the mesh
+    keeps the item's own shape; tight vertices (weight 0) are untouched.
+    One implicit diffusion step ``(I - T A) d = d0`` with
+    ``A = diag(w/2) (walk - I)`` (``walk`` = neighbour averaging, ``T`` the
+    diffusion time), factorised once: a linear map, so it can run every
+    animation frame at the cost of one sparse solve.
+    """
+
+    def __init__(self, neighbours: sp.spmatrix, weight: np.ndarray,
+                 time_steps: int = LOOSE_ITERATIONS):
+        from scipy.sparse.linalg import splu
+        idx = np.flatnonzero(np.asarray(weight) > 0)
+        self.ring = np.zeros(0, dtype=np.int64)
+        self._lu = None
+        if len(idx) == 0 or time_steps <= 0:
+            return
+        a = neighbours.tocsr()
+        deg = np.asarray(a.sum(axis=1)).ravel()
+        walk = (sp.diags(1.0 / np.maximum(deg, 1.0)) @ a).tocsr()
+        # the loose vertices and their neighbours (which they average with)
+        self.ring = np.unique(np.concatenate([idx, walk[idx].indices]))
+        n = len(self.ring)
+        w = 0.5 * np.asarray(weight, dtype=np.float64)[self.ring]
+        gen = sp.diags(w) @ (walk[self.ring][:, self.ring] - sp.eye(n))
+        self._lu = splu((sp.eye(n) - float(time_steps) * gen).tocsc())
+
+    def __call__(self, points: np.ndarray, ref_points: np.ndarray) -> np.ndarray:
+        if self._lu is None:
+            return points
+        dr = self._lu.solve(np.ascontiguousarray(points[self.ring] - ref_points[self.ring]))
+        out = points.copy()
+        out[self.ring] = ref_points[self.ring] + dr
+        return out
+
+
 def push_out(body_query: SurfaceQuery, item_points: np.ndarray, min_clearance: np.ndarray,
              mask: np.ndarray | None = None, neighbours: sp.spmatrix | None = None,
              smooth: float = 0.5, passes: int = 2):
@@ -169,6 +224,9 @@ class DressPlan:
     rigid_groups: list of (vertex indices (P,), body vertex indices (Q,),
         body vertex weights (Q,)) moved by one similarity transform.
     neighbours: (M, M) item adjacency (all items, block diagonal).
+    looseness: (M,) 0..1, how much each vertex's displacement is smoothed
+        over the item mesh (see :class:`LooseSmoother`): 0 for tight parts
+        (clearance kept exactly), 1 for parts hanging far from the body.
     """
     items: list[Mesh]
     binding: Binding
@@ -183,6 +241,8 @@ class DressPlan:
     rigid_items: list = field(default_factory=list)
     skirt_items: list = field(default_factory=list)
     neighbours: sp.csr_matrix | None = None
+    looseness: np.ndarray | None = None
+    smoother: "LooseSmoother | None" = None
     timings: dict = field(default_factory=dict)
 
     def item_slices(self):
@@ -332,11 +392,19 @@ def plan(ref: Character, k: int = 5, use_regions: bool = True, rigid="auto",
         if groups:
             rigid_items.append(item.name)
     neighbours = sp.block_diag(blocks, format="csr")
+    skirt_mask = np.zeros(len(pts), dtype=bool)
+    for item, a, b in zip(items, offsets[:-1], offsets[1:]):
+        if item.name in skirts:
+            skirt_mask[a:b] = True
+    loose = looseness(ref_clear, skirt_mask)
+    for gv, _, _ in rigid_groups:
+        loose[gv] = 0.0  # rigid parts move as a whole already
     t3 = time.perf_counter()
     return DressPlan(items=items, binding=binding, offsets=offsets, ref_points=pts,
                      ref_clearance=ref_clear, labels=labels, tri_labels=tri_labels,
                      body_labels=body_labels, rigid_groups=rigid_groups,
                      rigid_items=rigid_items, skirt_items=skirts, neighbours=neighbours,
+                     looseness=loose, smoother=LooseSmoother(neighbours, loose),
                      ref_body=body.points,
                      timings={"regions_s": t1 - t0, "bind_s": t2 - t1, "plan_rest_s": t3 - t2})
 
@@ -365,6 +433,8 @@ def apply(plan_: DressPlan, body_points: np.ndarray, body_faces: np.ndarray,
     for gv, bv, bw in plan_.rigid_groups:
         s, rot, t = similarity_fit(plan_.ref_body[bv], body_points[bv], bw)
         pts[gv] = s * plan_.ref_points[gv] @ rot + t
+    if plan_.smoother is not None:
+        pts = plan_.smoother(pts, plan_.ref_points)
     t1 = time.perf_counter()
     moved = np.zeros(len(pts), dtype=bool)
     if penetration:
