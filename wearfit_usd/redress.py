@@ -457,6 +457,13 @@ def apply(plan_: DressPlan, body_points: np.ndarray, body_faces: np.ndarray,
         target = np.where(plan_.ref_clearance > 0, plan_.ref_clearance, np.nan)
         debug(f"penetration pass: {int(cand.sum())} of {len(cand)} vertices tested")
         pts, moved = push_out(query, pts, target, mask=cand, neighbours=plan_.neighbours)
+        if plan_.smoother is not None and np.any(moved & (plan_.looseness > 0)):
+            # loose parts: spread the push over the neighbourhood (a smooth
+            # bulge, not a spike), then push out what went back inside
+            pts = plan_.smoother(pts, plan_.ref_points)
+            again = cand | moved
+            pts, moved2 = push_out(query, pts, target, mask=again, neighbours=plan_.neighbours)
+            moved |= moved2
     t2 = time.perf_counter()
     return pts, free, moved, {"evaluate_s": t1 - t0, "penetration_s": t2 - t1}
 
