@@ -1,5 +1,10 @@
 """Dressing benchmark: reference items on every target body, next to MakeHuman's .mhclo fitting.
 
+Peers in the same run: MakeHuman's .mhclo proxy fitting (same-topology shapes)
+and the classic one-triangle barycentric wrap (K=1, no regions, no push-out).
+Writes front-view comparison pictures (items coloured by clearance):
+``dress_<reference>_<target>.png``.
+
 Per (reference, target, item): new penetrations (item vertices >1 mm inside the
 target body that were outside the reference body), clearance change (median /
 95th percentile of |signed distance change|), flipped item triangles (normal
@@ -56,6 +61,7 @@ def run(full: bool, out_dir: Path) -> list[dict]:
     from wearfit_usd.clearance import SurfaceQuery
     from wearfit_usd.metrics import clearance_change, flip_and_stretch
     from wearfit_usd.mhclo import fit as mh_fit, shape_points, to_internal
+    from wearfit_usd.binding import bind
     from wearfit_usd.redress import apply, fitted_body_points, plan
     from wearfit_usd.usd_io import read_character
 
@@ -70,6 +76,9 @@ def run(full: bool, out_dir: Path) -> list[dict]:
         t0 = time.perf_counter()
         pl = plan(ref)
         t_plan = time.perf_counter() - t0
+        # peer: the classic one-triangle barycentric wrap (K=1, no regions, no push-out)
+        wrap = bind(ref.body.points, ref.body.faces, pl.ref_points, k=1)
+        pictured = False
         for tname in targets:
             if not full and tname not in QUICK:
                 continue
@@ -83,7 +92,9 @@ def run(full: bool, out_dir: Path) -> list[dict]:
                 rows.append({**base, "item": "*", "error": str(exc).split(": ", 1)[-1][:90]})
                 continue
             pts, free, moved, tm = apply(pl, body, ref.body.faces)
+            pts_k1 = wrap.evaluate(body)
             qt = SurfaceQuery(tgt.body.faces, tgt.body.points)
+            mh_items = []
             shape = SHAPE.get(tname)
             mh_base = body_err = None
             if shape is not None:
@@ -103,9 +114,18 @@ def run(full: bool, out_dir: Path) -> list[dict]:
                        **{k: round(v, 3) for k, v in clearance_change(dr, dt).items()},
                        "flipped_pct": round(flip, 3), "overstretch_pct": round(stretch, 3),
                        "pushed": int(moved[sl].sum())}
+                k1 = clearance_change(dr, qt.signed_distance(pts_k1[sl]))
+                k1_flip, k1_stretch = flip_and_stretch(item.points, pts_k1[sl], item.faces,
+                                                       wrap.triangles[sl, 0], ref.body.points, body,
+                                                       ref.body.faces)
+                row.update({"k1_new_pen_pct": round(k1["new_pen_pct"], 3),
+                            "k1_clear_med_mm": round(k1["clear_med_mm"], 3),
+                            "k1_clear_p95_mm": round(k1["clear_p95_mm"], 3),
+                            "k1_flipped_pct": round(k1_flip, 3), "k1_overstretch_pct": round(k1_stretch, 3)})
                 px = _proxy_for(item, proxies)
                 if mh_base is not None and px is not None:
                     mp = to_internal(mh_fit(px, mh_base))
+                    mh_items.append(item.copy_with_points(mp))
                     mh = clearance_change(dr, qt.signed_distance(mp))
                     row.update({"mh_new_pen_pct": round(mh["new_pen_pct"], 3),
                                 "mh_clear_med_mm": round(mh["clear_med_mm"], 3),
@@ -114,6 +134,11 @@ def run(full: bool, out_dir: Path) -> list[dict]:
                 if body_err is not None:
                     row["mh_body_recipe_err_mm"] = round(body_err, 6)
                 rows.append(row)
+            if not pictured and mh_items:
+                pictured = True
+                _picture(ref, tgt, [m.copy_with_points(pts[sl]) for m, sl in zip(pl.items, pl.item_slices())],
+                         mh_items, [m.copy_with_points(pts_k1[sl]) for m, sl in zip(pl.items, pl.item_slices())],
+                         Path(out_dir) / f"dress_{Path(ref_name).stem}_{Path(tname).stem}.png")
             rows.append({**base, "item": "*timing*", "verts": int(len(pts)),
                          "plan_s": round(t_plan, 4), "bind_s": round(pl.timings["bind_s"], 4),
                          "evaluate_ms": round(tm["evaluate_s"] * 1000, 3),
@@ -133,10 +158,35 @@ def run(full: bool, out_dir: Path) -> list[dict]:
     return rows
 
 
+def _picture(ref, tgt, ours, mh, k1, dest: Path) -> None:
+    """Front views side by side: reference, target body, our result, the
+    MakeHuman .mhclo fit and the K=1 wrap, items coloured by clearance."""
+    import tempfile
+    from PIL import Image, ImageDraw
+    from wearfit_usd.render import render_frames
+    from wearfit_usd.usd_io import write_character
+    tiles = []
+    with tempfile.TemporaryDirectory() as tmp:
+        stages = [("reference", ref.source, True)]
+        for label, items, heat in (("target", [], False), ("wearfit", ours, True),
+                                   ("MakeHuman .mhclo", mh, True), ("K=1 wrap", k1, True)):
+            p = Path(tmp) / f"{len(stages)}.usda"
+            write_character(p, tgt, items=items)
+            stages.append((label, p, heat))
+        for label, path, heat in stages:
+            im = render_frames(path, size=(300, 450), camera="front", heatmap=heat, show_progress=False)[0]
+            img = Image.fromarray(im)
+            ImageDraw.Draw(img).text((8, 8), label, fill=(20, 20, 20))
+            tiles.append(np.asarray(img))
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    Image.fromarray(np.concatenate(tiles, axis=1)).save(dest)
+
+
 def _table(rows):
     cols = ["reference", "target", "item", "verts", "rigid", "new_pen_pct", "mh_new_pen_pct",
             "clear_med_mm", "clear_p95_mm", "mh_clear_med_mm", "mh_clear_p95_mm", "flipped_pct",
-            "overstretch_pct", "dist_to_mh_mean_mm", "pushed", "bind_s", "evaluate_ms",
+            "overstretch_pct", "k1_new_pen_pct", "k1_clear_med_mm", "k1_flipped_pct", "k1_overstretch_pct",
+            "dist_to_mh_mean_mm", "pushed", "bind_s", "evaluate_ms",
             "penetration_s", "frames_per_s", "error"]
     used = [c for c in cols if any(c in r for r in rows)]
     lines = [" | ".join(used)]
