@@ -216,6 +216,135 @@ def test_turntable_gives_n_views(animated_stage):
 
 
 # --------------------------------------------------------------------------
+# camera tracking
+
+
+def _write_walker(path, travel=3.0, n=10, static=False):
+    """A 'character' (0.5 x 1.7 x 0.3 m box standing on the ground) whose
+    time-sampled points move ``travel`` metres along +x over ``n`` frames
+    (10 time codes per second) with a 5 cm side-to-side sway;
+    ``static``: one unanimated pose."""
+    from pxr import Usd, UsdGeom, Vt
+    import trimesh
+    stage = Usd.Stage.CreateNew(str(path))
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
+    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+    stage.SetTimeCodesPerSecond(10)
+    box = trimesh.creation.box(extents=(0.5, 1.7, 0.3))
+    pts, faces = np.asarray(box.vertices) + [0, 0.85, 0], np.asarray(box.faces)
+    mesh = UsdGeom.Mesh.Define(stage, "/Walker")
+    mesh.CreateFaceVertexCountsAttr([3] * len(faces))
+    mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(faces.ravel().astype(np.int32)))
+    if static:
+        mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(pts.astype(np.float32)))
+    else:
+        stage.SetStartTimeCode(0)
+        stage.SetEndTimeCode(n - 1)
+        for t in range(n):
+            shift = [travel * t / (n - 1), 0, 0.05 * np.sin(np.pi * t / 2)]
+            mesh.GetPointsAttr().Set(Vt.Vec3fArray.FromNumpy((pts + shift).astype(np.float32)), t)
+    stage.GetRootLayer().Save()
+    return path
+
+
+def _fg_box(img):
+    ys, xs = np.nonzero(_foreground(img))
+    assert len(ys), "nothing drawn"
+    return ys.min(), ys.max(), xs.min(), xs.max()
+
+
+@pytest.fixture(scope="module")
+def walker_renders(tmp_path_factory):
+    from wearfit_usd.render.preview import render_to_dir
+    base = tmp_path_factory.mktemp("walker")
+    path = _write_walker(base / "walker.usda")
+    import imageio.v3 as iio
+    out = {}
+    for name, track in (("auto", None), ("off", False), ("on", True)):
+        res = render_to_dir(path, base / name, size=SIZE, track=track, show_progress=False)
+        out[name] = (res["tracked"], [iio.imread(p)[..., :3] for p in res["frames"]])
+    return out
+
+
+def test_tracking_keeps_walker_centred_and_same_size(walker_renders):
+    tracked, imgs = walker_renders["auto"]
+    assert tracked, "3 m travel for a 1.7 m character must track automatically"
+    assert len(imgs) == 10
+    h, w = imgs[0].shape[:2]
+    heights = []
+    for i, img in enumerate(imgs):
+        y0, y1, x0, x1 = _fg_box(img)
+        assert y0 > 0 and x0 > 0 and y1 < h - 1 and x1 < w - 1, (i, "cut off")
+        assert abs((x0 + x1) / 2 - w / 2) < 0.1 * w, (i, x0, x1)
+        assert abs((y0 + y1) / 2 - h / 2) < 0.1 * h, (i, y0, y1)
+        heights.append(y1 - y0)
+        assert y1 - y0 > 0.6 * h, (i, "character too small")
+    assert max(heights) < 1.15 * min(heights), heights
+    # explicit track=True is the same camera
+    assert all(np.array_equal(a, b) for a, b in zip(imgs, walker_renders["on"][1]))
+
+
+def test_no_tracking_walker_moves_across_fixed_frame(walker_renders):
+    tracked, imgs = walker_renders["off"]
+    assert not tracked
+    w = imgs[0].shape[1]
+    boxes = [_fg_box(img) for img in imgs]
+    cx = [(b[2] + b[3]) / 2 for b in boxes]
+    assert cx[-1] - cx[0] > 0.4 * w, cx               # walks from left to right
+    assert all(b - a > 0 for a, b in zip(cx, cx[1:])), cx
+    # framing the whole path: the character is much smaller than when tracked
+    tracked_h = np.mean([b[1] - b[0] for b in map(_fg_box, walker_renders["auto"][1])])
+    assert max(b[1] - b[0] for b in boxes) < 0.8 * tracked_h
+
+
+def test_tracking_off_for_static_and_in_place_motion(tmp_path, animated_stage):
+    from wearfit_usd.render.preview import render_frames, render_to_dir, resolve_track
+    from wearfit_usd.render.scene import read_scene
+    static = _write_walker(tmp_path / "static.usda", static=True)
+    res = render_to_dir(static, tmp_path / "s", size=(96, 72), show_progress=False)
+    assert res["tracked"] is False and res["n_frames"] == 1
+    # small travel (0.5 m for a 1.7 m character) and the swinging-arm stage: no tracking
+    small = read_scene(_write_walker(tmp_path / "small.usda", travel=0.5))
+    assert resolve_track(small) is False
+    assert resolve_track(read_scene(animated_stage)) is False
+    # ... unless asked; never for turntables
+    assert resolve_track(small, track=True) is True
+    walker = read_scene(_write_walker(tmp_path / "w.usda"))
+    assert resolve_track(walker, camera="turntable:4") is False
+    assert resolve_track(walker, camera="side", track=False) is False
+    # a turntable of the walker renders its first frame around the character as before
+    a = render_frames(tmp_path / "w.usda", size=(96, 72), camera="turntable:2", show_progress=False)
+    b = render_frames(tmp_path / "w.usda", size=(96, 72), camera="turntable:2", track=True,
+                      show_progress=False)
+    assert len(a) == 2 and all(np.array_equal(x, y) for x, y in zip(a, b))
+
+
+def test_smooth_path_no_lag_and_no_jitter():
+    from wearfit_usd.render.camera import smooth_path, tracking_views
+    t = np.arange(60.0)
+    line = np.stack([0.05 * t, 1.0 - 0.02 * t], axis=1)
+    # a steady walk comes back unchanged, ends included (no lag, no stop)
+    assert np.allclose(smooth_path(t, line, sigma=12.0), line, atol=1e-9)
+    # step-frequency sway (period 15 frames, 5 cm) is mostly removed
+    sway = line + 0.05 * np.sin(2 * np.pi * t / 15)[:, None]
+    sm = smooth_path(t, sway, sigma=12.0)
+    err = np.abs(sm - line)
+    assert err[20:40].max() < 0.002, err[20:40].max()     # away from the ends: gone
+    assert err.max() < 0.025, err.max()                    # ends: under half the sway
+    steps = np.diff(sm, axis=0)                            # raw steps vary 0.029..0.071
+    assert np.abs(steps[:, 0] - 0.05).max() < 0.005, steps[:, 0]  # camera moves steadily
+    # views: same orientation and distance, ground height fixed, targets on the path
+    los = np.column_stack([sway[:, 0] - 0.3, np.zeros(60), sway[:, 1] - 0.2])
+    his = los + [0.6, 1.8, 0.4]
+    views = tracking_views(los, his, t, 28.0, 10.0, 4 / 3, sigma=12.0)
+    offs = np.array([v.eye - v.target for v in views])
+    assert np.allclose(offs, offs[0])
+    assert np.allclose([v.eye[1] for v in views], views[0].eye[1])
+    shift = np.array([v.target for v in views])[:, [0, 2]] - sm   # targets on the smoothed path
+    assert np.allclose(shift, shift[0]) and np.abs(shift[0]).max() < 0.05, shift[0]
+
+
+# --------------------------------------------------------------------------
 # heatmap
 
 

@@ -1,4 +1,4 @@
-"""Camera placement: named views, turntables and auto-framing (pure numpy).
+"""Camera placement: named views, turntables, auto-framing and tracking (pure numpy).
 
 Internal space (Y up, metres); characters face +Z (MakeHuman/Blender "front",
 -Y in a Z-up stage). Yaw is measured around +Y from the +Z axis towards +X:
@@ -111,3 +111,77 @@ def turntable_box(lo, hi) -> tuple[np.ndarray, np.ndarray]:
     c = (lo + hi) / 2
     r = float(np.hypot(hi[0] - lo[0], hi[2] - lo[2])) / 2
     return (np.array([c[0] - r, lo[1], c[2] - r]), np.array([c[0] + r, hi[1], c[2] + r]))
+
+
+# Tracking: follow a travelling character (walks) instead of framing its whole path.
+TRACK_TRAVEL_RATIO = 0.5   # auto-track when horizontal travel > this x the character's height
+TRACK_SMOOTHING_S = 0.4    # Gaussian sigma (seconds) of the camera path smoothing
+
+
+def should_track(los, his, ratio: float = TRACK_TRAVEL_RATIO) -> bool:
+    """Whether a camera should follow the character: its per-frame box
+    centres (``los``/``his`` (F, 3) per-frame boxes, internal metres) span
+    horizontally more than ``ratio`` x its largest per-frame height."""
+    los, his = np.atleast_2d(np.asarray(los, float)), np.atleast_2d(np.asarray(his, float))
+    if len(los) < 2:
+        return False
+    c = (los + his)[:, [0, 2]] / 2
+    travel = float(np.linalg.norm(np.ptp(c, axis=0)))
+    height = float(np.max(his[:, 1] - los[:, 1]))
+    return travel > ratio * max(height, 1e-9)
+
+
+def smooth_path(times, values, sigma: float) -> np.ndarray:
+    """Smooth a sampled path by Gaussian-weighted local linear regression.
+
+    times: (F,) sample times; values: (F, D); sigma: Gaussian width in the
+    units of ``times`` (weights cut at 3 sigma). Returns (F, D). In the
+    interior this is a centred Gaussian moving average (no lag, no jitter);
+    near the ends the local line fit follows a steadily moving path without
+    the lag (or stop) that a truncated average gives. A constant-velocity
+    path is returned unchanged."""
+    t = np.asarray(times, float)
+    v = np.asarray(values, float).reshape(len(t), -1)
+    if len(t) < 3 or not sigma > 0:
+        return v.copy()
+    out = np.empty_like(v)
+    for i in range(len(t)):
+        dt = t - t[i]
+        w = np.exp(-0.5 * (dt / sigma) ** 2)
+        w[np.abs(dt) > 3 * sigma] = 0.0
+        w /= w.sum()
+        m1 = float(w @ dt)
+        var = float(w @ (dt * dt)) - m1 * m1
+        mean = w @ v
+        if var <= 1e-12 * max(sigma * sigma, 1e-12):
+            out[i] = mean
+            continue
+        slope = (w @ (dt[:, None] * v) - m1 * mean) / var
+        out[i] = mean - slope * m1   # the fitted line at dt = 0
+    return out
+
+
+def tracking_views(los, his, times, yaw_deg: float, elevation_deg: float, aspect: float,
+                   sigma: float, yfov_deg: float = 30.0, margin: float = 1.08) -> list[View]:
+    """One view per frame following the character horizontally.
+
+    los/his: (F, 3) per-frame boxes (internal metres); times: (F,) time
+    codes; sigma: path smoothing in time codes. Every view has the same
+    orientation, distance and height (the ground stays put); its target
+    follows the smoothed horizontal centre of the per-frame boxes. The
+    distance frames the envelope of the per-frame boxes taken relative to
+    that path (at least the largest per-frame box), so the character keeps
+    a constant size and is never cut off."""
+    los, his = np.asarray(los, float), np.asarray(his, float)
+    path = smooth_path(times, ((los + his) / 2)[:, [0, 2]], sigma)  # (F, 2) x, z
+    rel_lo = (los[:, [0, 2]] - path).min(axis=0)
+    rel_hi = (his[:, [0, 2]] - path).max(axis=0)
+    lo = np.array([rel_lo[0], los[:, 1].min(), rel_lo[1]])
+    hi = np.array([rel_hi[0], his[:, 1].max(), rel_hi[1]])
+    base = frame_box(lo, hi, yaw_deg, elevation_deg, aspect, yfov_deg, margin)
+    views = []
+    for x, z in path:
+        off = np.array([x, 0.0, z])
+        views.append(View(eye=base.eye + off, target=base.target + off, up=base.up.copy(),
+                          yfov=base.yfov, znear=base.znear, zfar=base.zfar))
+    return views

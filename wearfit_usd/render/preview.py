@@ -11,7 +11,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..progress import progress
-from .camera import frame_box, parse_camera, turntable_box
+from .camera import TRACK_SMOOTHING_S, frame_box, parse_camera, should_track, tracking_views, turntable_box
 from .lighting import HEATMAP_BODY_COLOR
 from .scene import SceneDescription, read_scene
 
@@ -28,20 +28,39 @@ def _parse_size(size) -> tuple[int, int]:
     return w, h
 
 
+def resolve_track(scene: SceneDescription, camera: str = "auto", track: bool | None = None) -> bool:
+    """Whether :func:`render_scene` follows the character: never for a
+    turntable; ``track`` when given; else (None) when the character's
+    horizontal travel over the frames exceeds half its height
+    (:func:`~.camera.should_track`). Raises ValueError for a bad camera."""
+    kind, _ = parse_camera(camera)
+    if kind == "turntable" or scene.n_frames < 2 or not scene.meshes:
+        return False
+    if track is not None:
+        return bool(track)
+    return should_track(*scene.frame_bounds())
+
+
 def render_scene(scene: SceneDescription, size=(640, 480), camera: str = "auto",
                  heatmap: bool = False, reference: SceneDescription | None = None,
                  antialias: bool = False, show_progress: bool = True,
-                 legend: bool = True) -> list[np.ndarray]:
+                 legend: bool = True, track: bool | None = None) -> list[np.ndarray]:
     """Render a :class:`SceneDescription` to (H, W, 3) uint8 images.
 
-    camera: ``front|side|back|auto`` (one image per scene frame, one fixed
-    camera framing the character over all frames) or ``turntable:N`` (N
-    images around the scene's first frame). heatmap: colour items by
-    clearance to the body (``reference``: by change of clearance versus the
-    reference scene's items). Raises ValueError for bad camera/size."""
+    camera: ``front|side|back|auto`` (one image per scene frame) or
+    ``turntable:N`` (N images around the scene's first frame). track: with a
+    named view, True makes the camera follow the character (fixed
+    orientation, distance and height; target on the smoothed horizontal
+    centre of the per-frame boxes, distance sized to the largest per-frame
+    box), False keeps one fixed camera framing the character over all
+    frames, None (default) tracks when the character travels more than half
+    its height (:func:`resolve_track`). heatmap: colour items by clearance to
+    the body (``reference``: by change of clearance versus the reference
+    scene's items). Raises ValueError for bad camera/size."""
     from .offscreen import Renderer
     w, h = _parse_size(size)
     kind, angles = parse_camera(camera)
+    track = resolve_track(scene, camera, track)
     if heatmap or reference is not None:
         heatmap = True
         if scene.body is None or not scene.items:
@@ -50,6 +69,11 @@ def render_scene(scene: SceneDescription, size=(640, 480), camera: str = "auto",
         frame_ids = [0] * len(angles)
         lo, hi = turntable_box(*scene.bounds([0]))
         views = [frame_box(lo, hi, yaw, el, w / h) for yaw, el in angles]
+    elif track:
+        frame_ids = list(range(scene.n_frames))
+        los, his = scene.frame_bounds()
+        sigma = TRACK_SMOOTHING_S * (scene.fps if scene.fps and scene.fps > 0 else 24.0)
+        views = tracking_views(los, his, scene.times, angles[0][0], angles[0][1], w / h, sigma)
     else:
         frame_ids = list(range(scene.n_frames))
         lo, hi = scene.bounds()
@@ -109,12 +133,14 @@ def render_scene(scene: SceneDescription, size=(640, 480), camera: str = "auto",
 
 def render_frames(stage_path, frames=None, size=(640, 480), camera: str = "auto",
                   heatmap: bool = False, heatmap_against=None, antialias: bool = False,
-                  show_progress: bool = True) -> list[np.ndarray]:
+                  show_progress: bool = True, track: bool | None = None) -> list[np.ndarray]:
     """Render a USD stage to a list of (H, W, 3) uint8 images.
 
     frames: None (the stage's whole time range), ``(start, end)`` inclusive
     time codes or ``"A:B"``. size: (width, height) or ``"640x480"``.
-    camera: ``front|side|back|auto|turntable:N``. heatmap: colour items by
+    camera: ``front|side|back|auto|turntable:N``. track: camera follows the
+    character (True), one fixed camera (False), or None = follow when it
+    travels more than half its height (see :func:`render_scene`). heatmap: colour items by
     clearance to the body; heatmap_against: path of a reference stage to
     colour by change of clearance instead.
     Raises :class:`~wearfit_usd.errors.InputError` for bad input."""
@@ -126,16 +152,18 @@ def render_frames(stage_path, frames=None, size=(640, 480), camera: str = "auto"
     scene = read_scene(stage_path, frames)
     reference = read_scene(heatmap_against, None) if heatmap_against is not None else None
     return render_scene(scene, size=size, camera=camera, heatmap=heatmap, reference=reference,
-                        antialias=antialias, show_progress=show_progress)
+                        antialias=antialias, show_progress=show_progress, track=track)
 
 
 def render_to_dir(stage_path, out_dir, frames=None, size=(640, 480), camera: str = "auto",
                   gif: bool = False, mp4: bool = False, heatmap: bool = False,
                   heatmap_against=None, fps: float | None = None, antialias: bool = False,
-                  show_progress: bool = True) -> dict:
+                  show_progress: bool = True, track: bool | None = None) -> dict:
     """Render and write ``out_dir/frame_0000.png ...``, ``contact_sheet.png``
     and optionally ``preview.gif`` / ``preview.mp4``. fps: default the
-    stage's time codes per second (turntables: 12). Returns the written paths."""
+    stage's time codes per second (turntables: 12). track: as in
+    :func:`render_frames` (None = automatic). Returns the written paths,
+    ``n_frames``, ``times`` and ``tracked`` (whether the camera followed)."""
     from .media import write_outputs
     try:
         _parse_size(size)
@@ -146,11 +174,13 @@ def render_to_dir(stage_path, out_dir, frames=None, size=(640, 480), camera: str
         raise InputError(stage_path, f"fps must be > 0, got {fps}")
     scene = read_scene(stage_path, frames)
     reference = read_scene(heatmap_against, None) if heatmap_against is not None else None
+    tracked = resolve_track(scene, camera, track)
     images = render_scene(scene, size=size, camera=camera, heatmap=heatmap, reference=reference,
-                          antialias=antialias, show_progress=show_progress)
+                          antialias=antialias, show_progress=show_progress, track=tracked)
     if fps is None:
         fps = 12.0 if kind == "turntable" else (scene.fps or 24.0)
     out = write_outputs(images, Path(out_dir), fps=fps, gif=gif, mp4=mp4)
     out["n_frames"] = len(images)
     out["times"] = scene.times if kind != "turntable" else [scene.times[0]]
+    out["tracked"] = tracked
     return out

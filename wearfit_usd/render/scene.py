@@ -91,6 +91,20 @@ class SceneDescription:
                 hi = np.maximum(hi, f.max(axis=0))
         return lo, hi
 
+    def frame_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """(los, his) (F, 3): the box of every mesh at each frame."""
+        los = np.full((self.n_frames, 3), np.inf)
+        his = np.full((self.n_frames, 3), -np.inf)
+        for m in self.meshes:
+            cache = {}
+            for i, f in enumerate(m.frames):
+                if id(f) not in cache:
+                    cache[id(f)] = (f.min(axis=0), f.max(axis=0))
+                lo, hi = cache[id(f)]
+                los[i] = np.minimum(los[i], lo)
+                his[i] = np.maximum(his[i], hi)
+        return los, his
+
     @property
     def n_triangles(self) -> int:
         return int(sum(len(m.faces) for m in self.meshes))
