@@ -14,5 +14,8 @@ DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recomme
 PIP="${PIP:-python3 -m pip}"
 $PIP install --upgrade pip >/dev/null
 $PIP install -e ".[fast,bench,test]"
-$PIP install "PyOpenGL==3.1.10" 2>&1 | grep -v "pyrender 0.1.45 requires PyOpenGL==3.1.0" || true
+# pip then reports the pin conflict on purpose ("pyrender 0.1.45 requires PyOpenGL==3.1.0"): expected.
+$PIP install "PyOpenGL==3.1.10" 2>&1 | grep -v -e "pyrender 0.1.45 requires PyOpenGL==3.1.0" \
+    -e "dependency resolver does not currently take into account" || true
+python3 -c "import OpenGL; assert OpenGL.__version__ == '3.1.10', OpenGL.__version__" 
 python3 -c "import wearfit_usd, pxr, pyrender; print('wearfit_usd installed')"

@@ -132,9 +132,39 @@ def run_case(clip: str, ref_name: str, body_name: str, out_dir: Path, mode: str,
             "animate_s": t["total"], "with_io_s": total}
 
 
+def long_clip(out_dir: Path, frames: int = 10000) -> dict:
+    """A `frames`-long clip (the walk repeated) animated at its native 120 fps
+    in a subprocess: wall time, peak resident memory and the value clips."""
+    import resource
+    import subprocess
+    from wearfit_usd.bvh import read_bvh
+    src = BVH_DIR / "cmu_07_01_walk.bvh"
+    motion = read_bvh(src)
+    lines = src.read_text().splitlines()
+    start = next(i for i, ln in enumerate(lines) if ln.strip().startswith("Frame Time")) + 1
+    rows = lines[start + 1:start + motion.n_frames]  # skip the T-pose frame
+    body = [rows[i % len(rows)] for i in range(frames)]
+    header = [("Frames: %d" % frames) if ln.strip().startswith("Frames") else ln for ln in lines[:start]]
+    clip = out_dir / "long_walk.bvh"
+    clip.write_text("\n".join(header + body) + "\n")
+    shot = out_dir / "animate_long.usdc"
+    code = ("import resource, sys, time; from wearfit_usd.cli import main; t = time.perf_counter(); "
+            f"rc = main(['animate', r'{USD_DIR / 'ref_male.usda'}', r'{USD_DIR / 'body_male_heavy.usdc'}', "
+            f"r'{clip}', '-o', r'{shot}', '--fps', 'native', '-q']); "
+            "print(rc, time.perf_counter() - t, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    rc, secs, rss_kb = out.stdout.split()[-3:]
+    clips = sorted((out_dir / "animate_long.clips").glob("*.usdc"))
+    return {"case": f"long clip {frames} frames (native 120 fps)", "exit": int(rc),
+            "seconds": float(secs), "peak_rss_mb": int(rss_kb) / 1024, "value_clip_layers": len(clips),
+            "frames_per_s": frames / float(secs)}
+
+
 def run(full: bool, out_dir: Path) -> list[dict]:
     out_dir.mkdir(parents=True, exist_ok=True)
     rows = [binding_microbench()]
+    if full:
+        rows.append(long_clip(out_dir))
     cases = FULL if full else QUICK
     every = 1 if full else 2
     for clip, ref, body in cases:

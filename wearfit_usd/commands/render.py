@@ -5,6 +5,7 @@ from ..errors import InputError
 
 
 def register(sub, common):
+    import argparse
     p = sub.add_parser(
         "render", parents=[common],
         help="render a USD stage offscreen to PNG frames, a contact sheet, GIF or MP4",
@@ -12,7 +13,7 @@ def register(sub, common):
                     "time-sampled points) without GPU or display: one PNG per frame "
                     "(DIR/frame_0000.png ...) and DIR/contact_sheet.png, optionally "
                     "DIR/preview.gif and DIR/preview.mp4. The camera frames the character over "
-                    "all rendered frames.")
+                    "all rendered frames, or follows it when it travels (see --track).")
     p.add_argument("scene", help="a .usd/.usda/.usdc/.usdz stage")
     p.add_argument("-o", "--out", required=True, metavar="DIR", help="output folder")
     p.add_argument("--frames", metavar="A:B", default=None,
@@ -22,6 +23,10 @@ def register(sub, common):
     p.add_argument("--camera", default="auto", metavar="VIEW",
                    help="front, side, back, auto (three-quarter) or turntable:N (N views around "
                         "the first frame); default auto")
+    p.add_argument("--track", action=argparse.BooleanOptionalAction, default=None,
+                   help="camera follows the character (fixed orientation and distance, smoothed "
+                        "horizontal path, fixed height); default: only when its horizontal travel "
+                        "exceeds half its height; never for turntables")
     p.add_argument("--gif", action="store_true", help="also write DIR/preview.gif")
     p.add_argument("--mp4", action="store_true", help="also write DIR/preview.mp4 (H.264)")
     p.add_argument("--heatmap", action="store_true",
@@ -50,7 +55,9 @@ def run(args) -> int:
                         camera=args.camera, gif=args.gif, mp4=args.mp4,
                         heatmap=args.heatmap or args.heatmap_against is not None,
                         heatmap_against=args.heatmap_against, fps=args.fps,
-                        antialias=args.antialias, show_progress=verbosity() >= 1)
+                        antialias=args.antialias, show_progress=verbosity() >= 1,
+                        track=args.track)
     info(f"wrote {out['n_frames']} frame(s) to {args.out}/frame_*.png and contact_sheet.png"
+         + (" (camera tracking the character)" if out.get("tracked") else "")
          + (f", {out['gif']}" if "gif" in out else "") + (f", {out['mp4']}" if "mp4" in out else ""))
     return 0
