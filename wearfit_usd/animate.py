@@ -208,7 +208,9 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
         posed_ref = replace(reference, body=reference.body.copy_with_points(ref_body0),
                             skeleton=ref_posed, items=ref_items0)
         posed_target = replace(target, body=target.body.copy_with_points(body0), skeleton=target_posed)
-        items_rest, dress_timings = dress_items(posed_ref, posed_target, k=opt.k)
+        items_rest, dress_timings = dress_items(posed_ref, posed_target, k=opt.k,
+                                                bind_labels=ref_plan.bind_labels,
+                                                skirt_items=ref_plan.skirt_items)
     rep.timings["dress_frame0"] = time.perf_counter() - t0
     rep.timings["dress_detail"] = dress_timings
 
@@ -235,7 +237,9 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
         from .redress import apply as apply_plan, plan as plan_dress
         frame0 = replace(target, body=body.copy_with_points(body0),
                          skeleton=_posed_skeleton(target.skeleton, world[0]), items=items)
-        frame_plan = plan_dress(frame0, k=opt.k)
+        # regions as found on the reference in its rest pose (limbs apart)
+        frame_plan = plan_dress(frame0, k=opt.k, bind_labels=ref_plan.bind_labels,
+                                skirt_items=ref_plan.skirt_items)
         evaluator = lambda f, body_f: apply_plan(frame_plan, body_f, body.faces,  # noqa: E731
                                                  penetration=False)[0]
         items_for_skin = []
@@ -311,10 +315,10 @@ class _LBSEvaluator:
         return self.skinner(self.mats[f])
 
 
-def dress_items(reference: Character, target: Character, k: int = 5):
+def dress_items(reference: Character, target: Character, k: int = 5, **plan_kw):
     """Fit the reference body onto the target body and redress the items
     (:func:`redress.dress`). Returns (items on the target in internal space,
     timings dict)."""
     from .redress import dress
-    res = dress(reference, target, k=k)
+    res = dress(reference, target, k=k, **plan_kw)
     return res.items, res.timings

@@ -243,6 +243,7 @@ class DressPlan:
     neighbours: sp.csr_matrix | None = None
     looseness: np.ndarray | None = None
     smoother: "LooseSmoother | None" = None
+    bind_labels: np.ndarray | None = None   # (M,) regions used for binding (skirt parts: HIPS)
     timings: dict = field(default_factory=dict)
 
     def item_slices(self):
@@ -308,8 +309,15 @@ def _auto_rigid(item: Mesh, ref_clear: np.ndarray, lab: np.ndarray, comp: np.nda
 def plan(ref: Character, k: int = 5, use_regions: bool = True, rigid="auto",
          rigid_max_size: float = 0.4, rigid_min_clearance: float = 0.004,
          rigid_max_vertices: int = 4000, far: float = FAR_FROM_BODY,
-         strict_far: bool = False) -> DressPlan:
+         strict_far: bool = False, bind_labels: np.ndarray | None = None,
+         skirt_items: list[str] | None = None) -> DressPlan:
     """Bind every item of ``ref`` to its body (done once per reference).
+
+    bind_labels / skirt_items: the region of each item vertex (and the skirt
+        items) from an earlier plan, e.g. of the reference in its rest pose.
+        Regions are best told apart with the limbs away from the body: a posed
+        body (hands hanging beside a skirt) would hand skirt vertices to the
+        arms. Default: found on this body.
 
     rigid: "auto" (small stiff parts, see :func:`_auto_rigid`), "none", or a
         list of item names moved rigidly as a whole (per body region).
@@ -340,7 +348,12 @@ def plan(ref: Character, k: int = 5, use_regions: bool = True, rigid="auto",
         body_labels = np.zeros(body.n_points, dtype=np.int64)
         leg_share = np.zeros(body.n_points)
     tri_labels = R.triangle_regions(body.faces, body_labels)
-    labels, skirts = item_labels(body, body_labels, tri_labels[good], items, pts, offsets, tree)
+    if bind_labels is None:
+        labels, skirts = item_labels(body, body_labels, tri_labels[good], items, pts, offsets, tree)
+    else:
+        if len(bind_labels) != len(pts):
+            raise ValueError(f"bind_labels has {len(bind_labels)} entries for {len(pts)} item vertices")
+        labels, skirts = np.asarray(bind_labels).copy(), list(skirt_items or [])
     t1 = time.perf_counter()
     # skirt parts hang from the hips: they may only use torso triangles that
     # the legs do not move (no leg skin weight), so spreading the legs
@@ -352,6 +365,7 @@ def plan(ref: Character, k: int = 5, use_regions: bool = True, rigid="auto",
     allowed[np.arange(len(pts)), np.where(labels == R.HIPS, R.HIPS, labels)] = True
     allowed[:, R.HIPS] |= labels == R.TORSO  # torso vertices may still use hip triangles
     binding = bind(body.points, body.faces, pts, k=k, candidate_mask=(mask_labels, allowed))
+    region_labels = labels.copy()  # with the HIPS marker of skirt parts
     labels = np.where(labels == R.HIPS, R.TORSO, labels)
     t2 = time.perf_counter()
     ref_clear, _ = local_signed_distance(binding, body.points, pts)
@@ -405,6 +419,7 @@ def plan(ref: Character, k: int = 5, use_regions: bool = True, rigid="auto",
                      body_labels=body_labels, rigid_groups=rigid_groups,
                      rigid_items=rigid_items, skirt_items=skirts, neighbours=neighbours,
                      looseness=loose, smoother=LooseSmoother(neighbours, loose),
+                     bind_labels=region_labels,
                      ref_body=body.points,
                      timings={"regions_s": t1 - t0, "bind_s": t2 - t1, "plan_rest_s": t3 - t2})
 
@@ -470,13 +485,16 @@ def apply(plan_: DressPlan, body_points: np.ndarray, body_faces: np.ndarray,
 
 def dress(ref: Character, target: Character, k: int = 5, use_regions: bool = True,
           rigid="auto", penetration: bool = True, body_points: np.ndarray | None = None,
-          strict_far: bool = False) -> DressResult:
-    """Put every item of ``ref`` on ``target``'s body (internal space)."""
+          strict_far: bool = False, bind_labels: np.ndarray | None = None,
+          skirt_items: list[str] | None = None) -> DressResult:
+    """Put every item of ``ref`` on ``target``'s body (internal space).
+    ``bind_labels``/``skirt_items``: see :func:`plan`."""
     tb = time.perf_counter()
     if body_points is None:
         body_points = fitted_body_points(ref, target)
     t_fit = time.perf_counter() - tb
-    p = plan(ref, k=k, use_regions=use_regions, rigid=rigid, strict_far=strict_far)
+    p = plan(ref, k=k, use_regions=use_regions, rigid=rigid, strict_far=strict_far,
+             bind_labels=bind_labels, skirt_items=skirt_items)
     pts, free, moved, tm = apply(p, body_points, ref.body.faces, penetration=penetration)
     timings = {"body_fit_s": t_fit, **p.timings, **tm}
     keep_weights = (target.skeleton is not None and ref.skeleton is not None
