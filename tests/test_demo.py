@@ -63,3 +63,18 @@ def test_previews_exist_and_read_back(demo):
             reader.close()
     md = (out / "report.md").read_text()
     assert "lineup.png" in md and "| short_heavy |" in md
+
+
+def test_skirt_does_not_follow_the_arms(demo):
+    """Arm raise: the skirt hangs from the hips; it must not balloon with the
+    arms (a binding to arm triangles did)."""
+    from pxr import Usd, UsdGeom
+    _, rep = demo
+    shot = rep["shots"]["shot_arm_raise_curvy_remeshed"]["file"]
+    stage = Usd.Stage.Open(shot)
+    skirt = UsdGeom.Mesh(stage.GetPrimAtPath("/Root/Items/skirt"))
+    widths = [np.ptp(np.array(skirt.GetPointsAttr().Get(f))[:, 0]) for f in range(0, 60, 5)]
+    assert max(widths) / min(widths) < 1.1, widths
+    hands_up = UsdGeom.Mesh(stage.GetPrimAtPath("/Root/Items/shirt"))
+    sleeves = [np.array(hands_up.GetPointsAttr().Get(f))[:, 1].max() for f in (0, 30)]
+    assert sleeves[1] > sleeves[0] + 0.3  # the sleeves do follow the arms up (Y-up stage)
