@@ -146,3 +146,27 @@ def test_cli_animate(tmp_path):
     stage = Usd.Stage.Open(str(out))
     vel = UsdGeom.Mesh(stage.GetPrimAtPath("/Root/Items/ponytail01")).GetVelocitiesAttr().Get(3)
     assert vel is not None and np.abs(np.array(vel)).max() > 0.01
+
+
+def test_pointed_foot_keeps_the_shoes_on(tmp_path, ref_female):
+    """Dance clip, frame 0 (pointe tendue): dressing in that pose keeps every
+    shoe vertex on the foot (the push-out once used an extrapolated plane
+    offset as clearance and threw shoe vertices 0.3 m away)."""
+    from pxr import Usd, UsdGeom
+    from wearfit_usd.clearance import SurfaceQuery
+    target = read_character(USD_DIR / "body_female_heavy.usdc")
+    clip = read_bvh(BVH_DIR / "cmu_05_12_dance_arms_held_high.bvh")
+    out = tmp_path / "dance.usdc"
+    animate(ref_female, target, clip, out, AnimateOptions(start=1, end=9, fps=30))
+    stage = Usd.Stage.Open(str(out))
+    shot = read_character(out)
+    local = None
+    from pxr import UsdSkel
+    cache = UsdSkel.Cache()
+    cache.Populate(UsdSkel.Root(stage.GetPrimAtPath("/Root/Character")), Usd.PrimDefaultPredicate)
+    sq = cache.GetSkelQuery(UsdSkel.Skeleton(stage.GetPrimAtPath("/Root/Character/Skeleton")))
+    local = np.array(sq.ComputeJointLocalTransforms(0))
+    body0 = skin_mesh(shot.body, shot.skeleton, shot.skeleton.world_from_local(local))
+    shoes = transform_points(_item_points(stage, "shoes02", 0), shot.to_internal)
+    d = SurfaceQuery(shot.body.faces, body0).signed_distance(shoes)
+    assert d.max() < 0.08, d.max()

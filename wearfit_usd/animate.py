@@ -43,6 +43,7 @@ class AnimateOptions:
     velocities: bool = False
     write_skinned_items: bool = False  # lbs mode: also write skinned item meshes
     penetration_margin: float = 0.001  # metres
+    dress_pose: str = "first"          # "first": dress in frame 0's pose; "bind": on the bind pose
     measure_every: int = 0             # exact penetration statistics every N frames (0 = off)
 
 
@@ -182,76 +183,71 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
     body = target.body
     skin_mats = skinning_matrices(target.skeleton.bind_world, world)  # (F, J, 4, 4)
 
-    # 2./3. dress frame 0 -----------------------------------------------------
+    # 2./3. dress -------------------------------------------------------------
     t0 = time.perf_counter()
     body_skinner = Skinner(body.points, body.joint_indices, body.joint_weights, target.skeleton.n_joints)
     body0 = body_skinner(skin_mats[0])
-    if opt.mode == "lbs":
-        items_rest, dress_timings = dress_items(reference, target, k=opt.k)
+    from .redress import apply as apply_plan, plan as plan_dress
+    # regions as found on the reference in its rest pose (limbs apart): a
+    # posed body (hands hanging beside a skirt) would hand skirt parts to the arms
+    ref_plan = plan_dress(reference, k=opt.k)
+    labels = {"bind_labels": ref_plan.bind_labels, "skirt_items": ref_plan.skirt_items}
+    if opt.mode == "lbs" or opt.dress_pose == "bind":
+        # dressed on the target's bind pose; frame 0 comes from the binding
+        items_base, dress_timings = dress_items(reference, target, k=opt.k, **labels)
+        base_body, base_skeleton = body.points, target.skeleton
     else:
+        # dressed in frame 0's pose: the reference is posed through its own
+        # rig, its items follow it, it is fitted onto the posed target
         ref_rt = retarget(motion, reference.skeleton, mapping=opt.mapping, start=opt.start,
-                          end=min(opt.start + 1, motion.n_frames) if opt.end is None else opt.start + 1,
-                          fps=None)
+                          end=opt.start + 1, fps=None)
         ref_world0 = ref_rt.world[0]
-        target_posed = _posed_skeleton(target.skeleton, world[0])
-        ref_posed = _posed_skeleton(reference.skeleton, ref_world0)
         ref_body0 = skin_points(reference.body.points, reference.body.joint_indices,
                                 reference.body.joint_weights,
                                 skinning_matrices(reference.skeleton.bind_world, ref_world0))
-        # the reference items follow their body into frame 0's pose (the
-        # region-aware binding of the reference, without push-out)
-        from .redress import apply as apply_plan, plan as plan_dress
-        ref_plan = plan_dress(reference, k=opt.k)
         posed_pts, _, _, _ = apply_plan(ref_plan, ref_body0, reference.body.faces, penetration=False)
         ref_items0 = [m.copy_with_points(posed_pts[sl])
                       for m, sl in zip(ref_plan.items, ref_plan.item_slices())]
         posed_ref = replace(reference, body=reference.body.copy_with_points(ref_body0),
-                            skeleton=ref_posed, items=ref_items0)
-        posed_target = replace(target, body=target.body.copy_with_points(body0), skeleton=target_posed)
-        items_rest, dress_timings = dress_items(posed_ref, posed_target, k=opt.k,
-                                                bind_labels=ref_plan.bind_labels,
-                                                skirt_items=ref_plan.skirt_items)
-    rep.timings["dress_frame0"] = time.perf_counter() - t0
+                            skeleton=_posed_skeleton(reference.skeleton, ref_world0), items=ref_items0)
+        base_skeleton = _posed_skeleton(target.skeleton, world[0])
+        posed_target = replace(target, body=target.body.copy_with_points(body0), skeleton=base_skeleton)
+        items_base, dress_timings = dress_items(posed_ref, posed_target, k=opt.k, **labels)
+        base_body = body0
+    rep.timings["dress"] = time.perf_counter() - t0
     rep.timings["dress_detail"] = dress_timings
 
     # 4. per-frame evaluation ---------------------------------------------------
     t0 = time.perf_counter()
-    items = list(items_rest)
+    items = list(items_base)
     sizes = [m.n_points for m in items]
     offsets = np.concatenate([[0], np.cumsum(sizes)])
-    all0 = np.concatenate([m.points for m in items])
+    all_base = np.concatenate([m.points for m in items])
     if opt.mode == "lbs":
         from .skin_transfer import transfer_weights
         ji, jw = transfer_weights(body.points, body.faces, body.joint_indices, body.joint_weights,
-                                  all0, target.skeleton.n_joints)
-        # the items were dressed on the target's bind pose: skin from there
-        evaluator = _LBSEvaluator(all0, ji, jw, skin_mats)
+                                  all_base, target.skeleton.n_joints)
+        evaluator = _LBSEvaluator(all_base, ji, jw, skin_mats)
         items_for_skin = [replace(m, joint_indices=ji[offsets[i]:offsets[i + 1]],
                                   joint_weights=jw[offsets[i]:offsets[i + 1]])
                           for i, m in enumerate(items)]
-        guard_points0 = evaluator(0, body0)
     else:
-        # the dressed items bound to the target at frame 0 with the same
-        # region-aware plan as dressing (skirts from the hips, rigid parts,
-        # loose parts smoothed): a linear evaluation per frame
-        from .redress import apply as apply_plan, plan as plan_dress
-        frame0 = replace(target, body=body.copy_with_points(body0),
-                         skeleton=_posed_skeleton(target.skeleton, world[0]), items=items)
-        # regions as found on the reference in its rest pose (limbs apart)
-        frame_plan = plan_dress(frame0, k=opt.k, bind_labels=ref_plan.bind_labels,
-                                skirt_items=ref_plan.skirt_items)
+        # the dressed items bound to the target with the same region-aware
+        # plan as dressing (skirts from the hips, rigid parts, loose parts
+        # smoothed): a linear evaluation per frame
+        base = replace(target, body=body.copy_with_points(base_body), skeleton=base_skeleton, items=items)
+        frame_plan = plan_dress(base, k=opt.k, **labels)
         evaluator = lambda f, body_f: apply_plan(frame_plan, body_f, body.faces,  # noqa: E731
                                                  penetration=False)[0]
         items_for_skin = []
-        guard_points0 = all0
     rep.timings["bind"] = time.perf_counter() - t0
-    guard = PenetrationGuard(body.faces, body0, guard_points0, margin=opt.penetration_margin)
+    # clearances to keep (and "new penetration" = inside now, outside when dressed)
+    guard = PenetrationGuard(body.faces, base_body, all_base, margin=opt.penetration_margin)
 
     clip_frames = opt.clip_frames
     if clip_frames is None and n_frames > 2000:
         clip_frames = 500
     t_lbs = t_eval = t_pen = t_write = t_measure = 0.0
-    inside0 = None
     with ShotWriter(out_path, target, items, fps=rt.fps, n_frames=n_frames, clip_frames=clip_frames,
                     velocities=opt.velocities,
                     skinned_items=items_for_skin if (opt.mode == "lbs" and opt.write_skinned_items) else None) as w:

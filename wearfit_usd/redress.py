@@ -368,7 +368,10 @@ def plan(ref: Character, k: int = 5, use_regions: bool = True, rigid="auto",
     region_labels = labels.copy()  # with the HIPS marker of skirt parts
     labels = np.where(labels == R.HIPS, R.TORSO, labels)
     t2 = time.perf_counter()
-    ref_clear, _ = local_signed_distance(binding, body.points, pts)
+    # clearance to keep = true signed distance to the reference body (the
+    # offset along a bound triangle's plane extrapolates: on a bent foot a
+    # rigid shoe's plane offsets reach tens of centimetres)
+    ref_clear = SurfaceQuery(body.faces, body.points).signed_distance(pts)
     far_mask = ref_clear > far
     if far_mask.any():
         names = [m.name for m, a, b in zip(items, offsets[:-1], offsets[1:]) if far_mask[a:b].any()]

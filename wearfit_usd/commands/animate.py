@@ -26,6 +26,10 @@ def register(sub, common):
     p.add_argument("--bvh-scale", type=float, default=None, help="metres per BVH unit (default: detected)")
     p.add_argument("--mode", choices=["bind", "lbs"], default="bind",
                    help="bind: K-triangle binding per frame (default); lbs: skin weights copied to the items")
+    p.add_argument("--dress-pose", choices=["first", "bind"], default="first",
+                   help="first: dress in the clip's first frame pose (reference posed through its own rig, "
+                        "fitted onto the posed target; default); bind: dress on the bind pose and reach "
+                        "frame 0 through the binding (contacts at frame 0 then stay temporary)")
     p.add_argument("--write-skinned-items", action="store_true",
                    help="with --mode lbs: also write the items as skinned meshes (for engines without point caches)")
     p.add_argument("--velocities", action="store_true", help="author point velocities (units per second)")
@@ -54,7 +58,7 @@ def run(args) -> int:
     motion = read_bvh(args.clip, scale=args.bvh_scale)
     opts = AnimateOptions(k=args.k, start=args.start, end=args.end, fps=fps, mode=args.mode,
                           mapping=mapping, clip_frames=args.clip_frames, velocities=args.velocities,
-                          write_skinned_items=args.write_skinned_items)
+                          write_skinned_items=args.write_skinned_items, dress_pose=args.dress_pose)
     rep = animate(reference, target, motion, args.output, opts)
     t = rep.timings
     info(f"wrote {args.output}: {rep.frames} frames at {rep.fps:g} fps, {len(reference.items)} items; "
