@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from wearfit_usd.body_fit import (FitOptions, SurfaceIndex, chamfer, closest_on_triangles,
-                                  fit_body, fit_character)
+from wearfit_usd.body_fit import FitOptions, SurfaceIndex, chamfer, fit_body, fit_character
+from wearfit_usd.clearance import closest_point_on_triangles
 from wearfit_usd.errors import GeometryError
 
 
@@ -31,8 +31,11 @@ def _sphere(n_sub: int):
 def test_closest_point_matches_brute_force():
     rng = np.random.default_rng(3)
     a, b, c, p = (rng.normal(size=(3000, 3)) for _ in range(4))
-    pts, bary, d2 = closest_on_triangles(p, a, b, c)
-    assert np.allclose(((pts - p) ** 2).sum(1), d2)
+    pts, bary, _ = closest_point_on_triangles(p, a, b, c)
+    d2 = ((pts - p) ** 2).sum(1)
+    # the closest point lies on its triangle: barycentric in [0, 1], consistent
+    assert bary.min() >= -1e-9 and bary.max() <= 1 + 1e-9
+    assert np.allclose(bary[:, :1] * a + bary[:, 1:2] * b + bary[:, 2:] * c, pts)
     uv = rng.random((3000, 2))
     uv = np.where(uv.sum(1, keepdims=True) > 1, 1 - uv, uv)
     samples = a[:, None] + uv[None, :, :1] * (b - a)[:, None] + uv[None, :, 1:] * (c - a)[:, None]

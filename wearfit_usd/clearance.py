@@ -19,62 +19,70 @@ from scipy.spatial import cKDTree
 FACE, EDGE01, EDGE12, EDGE20, VERT0, VERT1, VERT2 = range(7)
 
 
+def _closest_params(app, d20, d21, d00, d01, d11):
+    """Closest point ``a + s ab + t ac`` of triangles to points, from dot
+    products only: app = |p-a|^2, d20 = (p-a).ab, d21 = (p-a).ac,
+    d00 = ab.ab, d01 = ab.ac, d11 = ac.ac (broadcastable arrays).
+
+    Inside the triangle: the plane projection; otherwise the best of the
+    three edge projections clamped to the edge (exact; degenerate triangles
+    are handled through their edges). Returns (s, t, squared distance,
+    inside). On an edge or vertex, s and t are exactly 0 or 1 where clamped.
+    """
+    def dist2(s, t):
+        return np.maximum(app - 2 * s * d20 - 2 * t * d21 + s * s * d00 + 2 * s * t * d01
+                          + t * t * d11, 0.0)
+
+    den = d00 * d11 - d01 * d01
+    ok = den > 1e-12 * d00 * d11
+    sden = np.where(ok, den, 1.0)
+    v = (d11 * d20 - d01 * d21) / sden
+    w = (d00 * d21 - d01 * d20) / sden
+    inside = ok & (v >= 0) & (w >= 0) & (v + w <= 1)
+    # edge ab (t = 0), edge ac (s = 0), edge bc (s = 1 - u, t = u)
+    s_ab = np.clip(d20 / np.where(d00 > 0, d00, 1.0), 0.0, 1.0)
+    t_ac = np.clip(d21 / np.where(d11 > 0, d11, 1.0), 0.0, 1.0)
+    ee = d00 - 2 * d01 + d11
+    u_bc = np.clip((d21 - d20 - d01 + d00) / np.where(ee > 0, ee, 1.0), 0.0, 1.0)
+    zero = np.zeros_like(s_ab)
+    s_best, t_best = s_ab, zero
+    best = dist2(s_ab, zero)
+    for s_e, t_e in ((zero, t_ac), (1.0 - u_bc, u_bc)):
+        d = dist2(s_e, t_e)
+        better = d < best
+        s_best = np.where(better, s_e, s_best)
+        t_best = np.where(better, t_e, t_best)
+        best = np.where(better, d, best)
+    s_out = np.where(inside, v, s_best)
+    t_out = np.where(inside, w, t_best)
+    d_out = np.where(inside, dist2(v, w), best)
+    return s_out, t_out, d_out, inside
+
+
+def _feature(s: np.ndarray, t: np.ndarray, inside: np.ndarray) -> np.ndarray:
+    """Closest-feature code from the (s, t) of :func:`_closest_params`."""
+    feat = np.where(t == 0, np.where(s == 0, VERT0, np.where(s == 1, VERT1, EDGE01)),
+                    np.where(s == 0, np.where(t == 1, VERT2, EDGE20), EDGE12))
+    return np.where(inside, FACE, feat).astype(np.int8)
+
+
 def closest_point_on_triangles(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray):
     """Closest points on triangles (a, b, c) to points p, all (..., 3).
 
     Returns ``closest`` (..., 3), barycentric ``bary`` (..., 3) and the
     ``feature`` code (...,) of the closest feature (FACE, EDGE01, EDGE12,
-    EDGE20, VERT0, VERT1, VERT2). Follows the Voronoi-region case analysis
-    (Ericson, Real-Time Collision Detection, 5.1.5), vectorised.
+    EDGE20, VERT0, VERT1, VERT2).
     """
     p, a, b, c = np.broadcast_arrays(p, a, b, c)
-    ab = b - a
-    ac = c - a
-    ap = p - a
-    d1 = np.einsum("...i,...i->...", ab, ap)
-    d2 = np.einsum("...i,...i->...", ac, ap)
-    bp = p - b
-    d3 = np.einsum("...i,...i->...", ab, bp)
-    d4 = np.einsum("...i,...i->...", ac, bp)
-    cp = p - c
-    d5 = np.einsum("...i,...i->...", ab, cp)
-    d6 = np.einsum("...i,...i->...", ac, cp)
-    va = d3 * d6 - d5 * d4
-    vb = d5 * d2 - d1 * d6
-    vc = d1 * d4 - d3 * d2
+    ab, ac, ap = b - a, c - a, p - a
 
-    shape = p.shape[:-1]
-    u = np.zeros(shape)  # weight of b
-    v = np.zeros(shape)  # weight of c
-    feat = np.full(shape, FACE, dtype=np.int8)
-    done = np.zeros(shape, dtype=bool)
+    def dot(x, y):
+        return np.einsum("...i,...i->...", x, y)
 
-    def assign(mask, uu, vv, code):
-        nonlocal done
-        m = mask & ~done
-        u[m] = np.broadcast_to(uu, shape)[m]
-        v[m] = np.broadcast_to(vv, shape)[m]
-        feat[m] = code
-        done |= m
-
-    with np.errstate(divide="ignore", invalid="ignore"):
-        assign((d1 <= 0) & (d2 <= 0), 0.0, 0.0, VERT0)
-        assign((d3 >= 0) & (d4 <= d3), 1.0, 0.0, VERT1)
-        assign((d6 >= 0) & (d5 <= d6), 0.0, 1.0, VERT2)
-        t = d1 / (d1 - d3)
-        assign((vc <= 0) & (d1 >= 0) & (d3 <= 0), t, 0.0, EDGE01)
-        t = d2 / (d2 - d6)
-        assign((vb <= 0) & (d2 >= 0) & (d6 <= 0), 0.0, t, EDGE20)
-        t = (d4 - d3) / ((d4 - d3) + (d5 - d6))
-        assign((va <= 0) & ((d4 - d3) >= 0) & ((d5 - d6) >= 0), 1.0 - t, t, EDGE12)
-        denom = va + vb + vc
-        denom = np.where(np.abs(denom) < 1e-300, 1e-300, denom)
-        assign(np.ones(shape, dtype=bool), vb / denom, vc / denom, FACE)
-    u = np.nan_to_num(u)
-    v = np.nan_to_num(v)
-    closest = a + u[..., None] * ab + v[..., None] * ac
-    bary = np.stack([1.0 - u - v, u, v], axis=-1)
-    return closest, bary, feat
+    s, t, _, inside = _closest_params(dot(ap, ap), dot(ap, ab), dot(ap, ac), dot(ab, ab),
+                                      dot(ab, ac), dot(ac, ac))
+    closest = a + s[..., None] * ab + t[..., None] * ac
+    return closest, np.stack([1.0 - s - t, s, t], axis=-1), _feature(s, t, inside)
 
 
 def face_normals(points: np.ndarray, faces: np.ndarray, unit: bool = True) -> np.ndarray:
@@ -151,6 +159,12 @@ class SurfaceQuery:
         self.points = p
         fn = face_normals(p, self.faces, unit=True)
         self.face_normal = fn
+        self._a = p[self.faces[:, 0]]
+        self._ab = p[self.faces[:, 1]] - self._a
+        self._ac = p[self.faces[:, 2]] - self._a
+        self._d00 = np.einsum("ij,ij->i", self._ab, self._ab)
+        self._d01 = np.einsum("ij,ij->i", self._ab, self._ac)
+        self._d11 = np.einsum("ij,ij->i", self._ac, self._ac)
         # edge pseudo-normals: sum of the adjacent faces' unit normals
         self.edge_normal = self._edge_inc @ fn
         self._vertex_normal = None
@@ -212,7 +226,7 @@ class SurfaceQuery:
         self._vtree_cache = tree
 
     def closest(self, query: np.ndarray, k: int = 8, chunk: int = 32768,
-                candidates: np.ndarray | None = None):
+                candidates: np.ndarray | None = None, ring: bool = True, signed: bool = True):
         """Closest surface points to (M, 3) ``query``.
 
         Returns a dict with ``distance`` (M,) signed (positive outside),
@@ -224,7 +238,10 @@ class SurfaceQuery:
         true closest triangle (tested against brute force); it is not a
         guarantee for meshes with huge, sliver triangles. ``candidates``
         (M, c) triangle indices replace the centroid search (then only the
-        vertex tree is needed: cheap per animation frame).
+        vertex tree is needed: cheap per animation frame). ``ring=False``
+        skips the nearest vertex's triangles (about 2x cheaper, nearly always
+        the same answer on fine meshes). ``signed=False``: unsigned distances
+        and the closest triangle's unit normal (skips the pseudo-normals).
         """
         q = np.asarray(query, dtype=np.float64)
         m = len(q)
@@ -235,33 +252,43 @@ class SurfaceQuery:
         out_n = np.empty((m, 3))
         for s in range(0, m, chunk):
             sl = slice(s, min(m, s + chunk))
-            res = self._closest_block(q[sl], k, None if candidates is None else candidates[sl])
+            res = self._closest_block(q[sl], k, None if candidates is None else candidates[sl], ring, signed)
             out_d[sl], out_p[sl], out_t[sl], out_b[sl], out_n[sl] = res
         return {"distance": out_d, "point": out_p, "triangle": out_t, "bary": out_b, "normal": out_n}
 
-    def _closest_block(self, q, k, ci=None):
+    def _closest_block(self, q, k, ci=None, ring=True, signed=True):
         if ci is None:
             k = min(k, len(self.faces))
             _, ci = self._ctree.query(q, k=k, workers=-1)
             if k == 1:
                 ci = ci[:, None]
-        _, vi = self._vtree.query(q, k=1, workers=-1)
-        cand = np.concatenate([ci, self._ring[vi]], axis=1)
+        if ring:
+            _, vi = self._vtree.query(q, k=1, workers=-1)
+            cand = np.concatenate([ci, self._ring[vi]], axis=1)
+        else:
+            cand = ci
         d, cp, bary, feat, tri_idx = self._eval_candidates(q, cand)
+        if not signed:
+            return np.sqrt(d), cp, tri_idx, bary, self.face_normal[tri_idx]
         n = self._feature_normal(tri_idx, feat)
         diff = q - cp
         sign = np.where(np.einsum("ij,ij->i", diff, n) < 0, -1.0, 1.0)
         return sign * np.sqrt(d), cp, tri_idx, bary, n
 
     def _eval_candidates(self, q, ci):
-        f = self.faces[ci]  # (M, k, 3)
-        p = self.points
-        qq = np.broadcast_to(q[:, None, :], f.shape)
-        cp, bary, feat = closest_point_on_triangles(qq, p[f[..., 0]], p[f[..., 1]], p[f[..., 2]])
-        d = np.einsum("mki,mki->mk", qq - cp, qq - cp)
-        best = np.argmin(d, axis=1)
+        """Best of the candidate triangles ci (M, c) for each query point."""
+        ap = q[:, None, :] - self._a[ci]  # (M, c, 3)
+        app = np.einsum("mci,mci->mc", ap, ap)
+        d20 = np.einsum("mci,mci->mc", ap, self._ab[ci])
+        d21 = np.einsum("mci,mci->mc", ap, self._ac[ci])
+        s, t, d2, inside = _closest_params(app, d20, d21, self._d00[ci], self._d01[ci], self._d11[ci])
+        best = np.argmin(d2, axis=1)
         r = np.arange(len(q))
-        return d[r, best], cp[r, best], bary[r, best], feat[r, best], ci[r, best]
+        f = ci[r, best]
+        sb, tb = s[r, best], t[r, best]
+        cp = self._a[f] + sb[:, None] * self._ab[f] + tb[:, None] * self._ac[f]
+        bary = np.stack([1.0 - sb - tb, sb, tb], axis=1)
+        return d2[r, best], cp, bary, _feature(sb, tb, inside[r, best]), f
 
     def _feature_normal(self, tri_idx, feat):
         n = self.face_normal[tri_idx].copy()

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .clearance import vertex_normals
 from .errors import GeometryError, InputError, USDInputError
 from .model import Character, Mesh, Primvar, Skeleton
 from .transforms import (decompose, invert, quat_from_matrix, stage_to_internal,
@@ -389,17 +390,6 @@ def _extent(points):
     lo = points.min(axis=0)
     hi = points.max(axis=0)
     return Vt.Vec3fArray.FromNumpy(np.stack([lo, hi]).astype(np.float32))
-
-
-def vertex_normals(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Area-weighted vertex normals (N, 3), unit length."""
-    tri = points[faces]
-    fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    vn = np.zeros_like(points)
-    for c in range(3):
-        np.add.at(vn, faces[:, c], fn)
-    n = np.linalg.norm(vn, axis=1, keepdims=True)
-    return vn / np.where(n < 1e-20, 1.0, n)
 
 
 class _StageLayout:

@@ -30,7 +30,7 @@ import numpy as np
 from .model import Character, Mesh, Skeleton
 from .transforms import decompose, quat_from_matrix, transform_points
 from .usd_io import (_author_body, _author_mesh_topology, _author_skeleton, _extent,
-                     _safe_name, _StageLayout, _vt_points, vertex_normals)
+                     _safe_name, _StageLayout, _vt_points)
 
 
 class ShotWriter:
