@@ -24,6 +24,9 @@ def register(sub, common):
     p.add_argument("--no-regions", action="store_true",
                    help="do not restrict bindings to one body region (legs/arms/torso/head)")
     p.add_argument("--no-push-out", action="store_true", help="skip the penetration pass")
+    p.add_argument("--report", default=None, metavar="FILE.json",
+                   help="write per-item fit figures (new penetrations, clearance change, flipped "
+                        "triangles, over-stretched edges) and timings as JSON")
     p.add_argument("--strict", action="store_true",
                    help="fail (instead of warning) when an item lies more than 0.5 m from the body")
     p.set_defaults(func=run)
@@ -58,6 +61,16 @@ def run(args) -> int:
                 penetration=not args.no_push_out, strict_far=args.strict)
     write_character(out, target, items=res.items)
     t = res.timings
+    if args.report:
+        import json
+        from ..metrics import dress_report
+        rows = dress_report(ref, target, res)
+        Path(args.report).write_text(json.dumps({"reference": str(ref_path), "target": str(tgt_path),
+                                                 "output": str(out), "items": rows, "timings_s": t},
+                                                indent=2, default=float))
+        for r in rows:
+            info(f"  {r['item']:<24} new penetrations {r['new_pen_pct']:.2f} %, clearance change "
+                 f"median {r['clear_med_mm']:.2f} mm, p95 {r['clear_p95_mm']:.2f} mm")
     info(f"wrote {out}: {len(res.items)} items ({res.points.shape[0]} vertices) on "
          f"{tgt_path.name}; rigid: {', '.join(res.plan.rigid_items) or '-'}; "
          f"skirt-like: {', '.join(res.plan.skirt_items) or '-'}; "
