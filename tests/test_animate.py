@@ -170,3 +170,15 @@ def test_pointed_foot_keeps_the_shoes_on(tmp_path, ref_female):
     shoes = transform_points(_item_points(stage, "shoes02", 0), shot.to_internal)
     d = SurfaceQuery(shot.body.faces, body0).signed_distance(shoes)
     assert d.max() < 0.08, d.max()
+
+
+@pytest.mark.parametrize("clip", ["cmu3dsmax_131_01_start_walk_stop.bvh", "cmudaz_02_02_walk.bvh"])
+def test_other_dialects_animate(tmp_path, ref_male, heavy_male, clip):
+    """3ds Max (arms down at rest, ZXY arms) and Daz (cm, ZXY) clips dress in
+    their first frame's pose (body regions come from the rest pose, so hanging
+    arms are not mistaken for legs) and animate."""
+    out = tmp_path / "d.usdc"
+    rep = animate(ref_male, heavy_male, read_bvh(BVH_DIR / clip), out,
+                  AnimateOptions(start=1, end=41, fps=30, measure_every=3))
+    assert rep.frames == 10 and validate_stage(out) == []
+    assert rep.worst_frame_penetration <= 0.01

@@ -55,11 +55,14 @@ def _subtree(parents: np.ndarray, root: int) -> np.ndarray:
 def joint_regions(skeleton) -> np.ndarray:
     """(J,) region label of every joint (TORSO, LEFT_LEG, ... HEAD).
 
-    Uses the bind pose: works for A-, T- or other standing poses with the
-    usual conventions (Y up, character's left on +x).
+    Uses the rest pose (as authored; equal to the bind pose for most rigs):
+    works for A-, T- or other standing poses with the usual conventions
+    (Y up, character's left on +x). Not the bind pose, because a skeleton
+    re-bound in an animation frame (:func:`animate`) keeps its rest pose,
+    while a crouch or hanging arms would confuse the height tests.
     """
     parents = np.asarray(skeleton.parents)
-    pos = skeleton.bind_positions()
+    pos = skeleton.rest_world()[:, 3, :3]
     j = len(parents)
     labels = np.full(j, TORSO, dtype=np.int64)
     if j < 5:
