@@ -211,3 +211,30 @@ def test_mesh_joint_order_is_remapped(tmp_path, ref_male):
         ind.Set(Vt.IntArray.FromNumpy(inv[np.array(ind.Get())].astype(np.int32)))
     c = read_character(_edit_copy(tmp_path, edit))
     np.testing.assert_array_equal(c.body.joint_indices, ref_male.body.joint_indices)
+
+
+def test_ngon_item_round_trip_with_uvs_and_orientation(tmp_path, ref_male):
+    """An item with a pentagon, a quad and a triangle, indexed face-varying
+    UVs and leftHanded orientation survives write -> read unchanged, and its
+    triangles are wound outward in both cases."""
+    from wearfit_usd.model import Mesh, Primvar
+    pts = np.array([[0, 0, 0], [1, 0, 0], [1.3, 0.8, 0], [0.5, 1.3, 0], [-0.3, 0.8, 0],
+                    [2, 0, 0], [2, 1, 0], [3, 0, 0]], float) * 0.1 + [0, 0, 0.5]
+    counts = np.array([5, 4, 3])
+    idx = np.array([0, 1, 2, 3, 4, 1, 5, 6, 2, 5, 7, 6])
+    faces, t2p = triangulate(counts, idx, left_handed=True)
+    uv = Primvar("st", "texCoord2f[]", "faceVarying", np.random.default_rng(1).random((12, 2)).astype(np.float32),
+                 np.arange(12)[::-1].copy())
+    item = Mesh("patch", pts, faces, counts, idx, t2p, primvars=[uv], left_handed=True)
+    out = tmp_path / "ngon.usda"
+    write_character(out, ref_male, items=[item])
+    back = read_character(out).item("patch")
+    np.testing.assert_array_equal(back.face_vertex_counts, counts)
+    np.testing.assert_array_equal(back.face_vertex_indices, idx)
+    np.testing.assert_array_equal(back.faces, faces)
+    assert back.left_handed
+    np.testing.assert_allclose(back.points, pts, atol=1e-6)
+    st = next(p for p in back.primvars if p.name == "st")
+    assert st.interpolation == "faceVarying"
+    np.testing.assert_allclose(st.values, uv.values)
+    np.testing.assert_array_equal(st.indices, uv.indices)
