@@ -54,7 +54,7 @@ def binding_microbench(repeat: int = 200) -> dict:
     """One binding evaluation (all items of ref_male.usda) and one LBS of the
     body, timed on one core; the LBS-baseline per-frame cost in the same run."""
     from wearfit_usd.binding import bind
-    from wearfit_usd.skinning import skin_points, skinning_matrices
+    from wearfit_usd.skinning import Skinner, skinning_matrices
     from wearfit_usd.skin_transfer import transfer_weights
     from wearfit_usd.usd_io import read_character
     ref = read_character(USD_DIR / "ref_male.usda")
@@ -70,14 +70,17 @@ def binding_microbench(repeat: int = 200) -> dict:
     mats = skinning_matrices(skel.bind_world, skel.bind_world)
     ji, jw = transfer_weights(ref.body.points, ref.body.faces, ref.body.joint_indices,
                               ref.body.joint_weights, items, skel.n_joints)
+    skin_items = Skinner(items, ji, jw, skel.n_joints)  # built once, like the binding
+    skin_body = Skinner(ref.body.points, ref.body.joint_indices, ref.body.joint_weights, skel.n_joints)
+    skin_items(mats)
     t = time.perf_counter()
-    for _ in range(repeat // 4):
-        skin_points(items, ji, jw, mats)
-    t_lbs_items = (time.perf_counter() - t) / (repeat // 4)
+    for _ in range(repeat):
+        skin_items(mats)
+    t_lbs_items = (time.perf_counter() - t) / repeat
     t = time.perf_counter()
-    for _ in range(repeat // 4):
-        skin_points(ref.body.points, ref.body.joint_indices, ref.body.joint_weights, mats)
-    t_lbs_body = (time.perf_counter() - t) / (repeat // 4)
+    for _ in range(repeat):
+        skin_body(mats)
+    t_lbs_body = (time.perf_counter() - t) / repeat
     return {"case": "microbench ref_male items", "item_vertices": int(len(items)),
             "bind_eval_us": 1e6 * t_eval, "bind_eval_fps": 1 / t_eval,
             "lbs_items_us": 1e6 * t_lbs_items, "lbs_items_fps": 1 / t_lbs_items,
@@ -160,9 +163,30 @@ def long_clip(out_dir: Path, frames: int = 10000) -> dict:
             "frames_per_s": frames / float(secs)}
 
 
+def walk_command_time(out_dir: Path, repeat: int = 3) -> list[dict]:
+    """`wearfit animate` of the 317-frame CMU walk at 30 fps, reading and
+    writing included, as a user runs it (no exact per-frame measurement),
+    in both modes; median of ``repeat`` runs."""
+    from wearfit_usd.cli import main
+    rows = []
+    for mode in ("bind", "lbs"):
+        times = []
+        for _ in range(repeat):
+            t = time.perf_counter()
+            rc = main(["animate", str(USD_DIR / "ref_male.usda"), str(USD_DIR / "body_male_heavy.usdc"),
+                       str(BVH_DIR / "cmu_07_01_walk.bvh"), "--start", "1", "-o",
+                       str(out_dir / f"animate_cli_walk_{mode}.usdc"), "--mode", mode, "-q"])
+            times.append(time.perf_counter() - t)
+            assert rc == 0
+        rows.append({"case": f"wearfit animate walk 317 frames -> 79 at 30 fps ({mode})",
+                     "seconds_median": float(np.median(times)), "seconds_min": float(min(times))})
+    rows[0]["bind_vs_lbs_time"] = rows[0]["seconds_median"] / rows[1]["seconds_median"]
+    return rows
+
+
 def run(full: bool, out_dir: Path) -> list[dict]:
     out_dir.mkdir(parents=True, exist_ok=True)
-    rows = [binding_microbench()]
+    rows = [binding_microbench()] + walk_command_time(out_dir)
     if full:
         rows.append(long_clip(out_dir))
     cases = FULL if full else QUICK

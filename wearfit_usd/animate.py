@@ -100,8 +100,8 @@ class PenetrationGuard:
 
     def _estimate(self, body_points, item_points, tree, face_normal=None):
         """Clearance estimate (M,): offset along the nearest body vertex's
-        normal; +inf farther than 5 cm from every body vertex."""
-        d, vi = tree.query(item_points, k=1, distance_upper_bound=0.05, workers=-1)
+        normal; +inf farther than 3 cm from every body vertex (cannot sink this frame)."""
+        d, vi = tree.query(item_points, k=1, distance_upper_bound=0.03)
         far = np.isinf(d)
         vi[far] = 0
         if face_normal is None:
@@ -116,7 +116,7 @@ class PenetrationGuard:
     def apply(self, body_points: np.ndarray, item_points: np.ndarray):
         """Return (corrected item points (M, 3), number of suspects that were
         inside by more than the margin before correction)."""
-        tree = cKDTree(body_points, balanced_tree=False, compact_nodes=False)
+        tree = cKDTree(body_points)
         self.last_tree = tree
         self.query.update(body_points)
         self.query.set_vertex_tree(tree)

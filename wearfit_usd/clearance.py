@@ -135,7 +135,8 @@ class SurfaceQuery:
         # undirected edge ids for the three edges of every face (01, 12, 20)
         e = np.stack([self.faces[:, [0, 1]], self.faces[:, [1, 2]], self.faces[:, [2, 0]]], axis=1)
         e = np.sort(e.reshape(-1, 2), axis=1)
-        _, self._edge_id = np.unique(e, axis=0, return_inverse=True)
+        key = e[:, 0] * (int(e.max()) + 1 if len(e) else 1) + e[:, 1]  # 1-D keys: much faster unique
+        _, self._edge_id = np.unique(key, return_inverse=True)
         self._edge_id = self._edge_id.reshape(t, 3)
         self._n_edges = int(self._edge_id.max()) + 1
         nv = int(self.faces.max()) + 1 if t else 0
@@ -259,11 +260,11 @@ class SurfaceQuery:
     def _closest_block(self, q, k, ci=None, ring=True, signed=True):
         if ci is None:
             k = min(k, len(self.faces))
-            _, ci = self._ctree.query(q, k=k, workers=-1)
+            _, ci = self._ctree.query(q, k=k)
             if k == 1:
                 ci = ci[:, None]
         if ring:
-            _, vi = self._vtree.query(q, k=1, workers=-1)
+            _, vi = self._vtree.query(q, k=1)
             cand = np.concatenate([ci, self._ring[vi]], axis=1)
         else:
             cand = ci
