@@ -18,15 +18,21 @@ DEFAULT_OUT = REPO / "benchmarks" / "results"
 STAGES = ["fit", "dress", "animate", "render"]
 
 
-def format_table(rows: list[dict]) -> str:
-    """Rows of dicts -> fixed-width text table (union of keys, in order)."""
-    if not rows:
-        return "(no rows)"
+def _columns(rows: list[dict]) -> list[str]:
+    """Union of the rows' scalar keys, in first-seen order."""
     cols: list[str] = []
     for r in rows:
         for k in r:
             if k not in cols and not isinstance(r[k], (list, dict)):
                 cols.append(k)
+    return cols
+
+
+def format_table(rows: list[dict]) -> str:
+    """Rows of dicts -> fixed-width text table (union of keys, in order)."""
+    if not rows:
+        return "(no rows)"
+    cols = _columns(rows)
 
     def fmt(v):
         if isinstance(v, float):
@@ -44,11 +50,7 @@ def format_table(rows: list[dict]) -> str:
 def markdown_table(rows: list[dict]) -> str:
     if not rows:
         return "(no rows)\n"
-    cols: list[str] = []
-    for r in rows:
-        for k in r:
-            if k not in cols and not isinstance(r[k], (list, dict)):
-                cols.append(k)
+    cols = _columns(rows)
 
     def fmt(v):
         if isinstance(v, float):

@@ -54,7 +54,7 @@ _POS_CHANNELS = {"Xposition": 0, "Yposition": 1, "Zposition": 2}
 # --------------------------------------------------------------------------
 # Euler angles
 
-def _axis_rotation(axis: int, angle_rad: np.ndarray) -> np.ndarray:
+def axis_rotation(axis: int, angle_rad: np.ndarray) -> np.ndarray:
     """Row-vector rotation matrices (..., 3, 3) about one coordinate axis."""
     c = np.cos(angle_rad)
     s = np.sin(angle_rad)
@@ -86,7 +86,7 @@ def euler_to_matrix(angles_deg: np.ndarray, order: str) -> np.ndarray:
     out = np.broadcast_to(np.eye(3), angles.shape[:-1] + (3, 3)).copy()
     rad = np.deg2rad(angles)
     for k, letter in enumerate(order):
-        out = _axis_rotation(_AXES.index(letter), rad[..., k]) @ out
+        out = axis_rotation(_AXES.index(letter), rad[..., k]) @ out
     return out
 
 

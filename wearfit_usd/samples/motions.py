@@ -25,6 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..bvh import axis_rotation
+
 FPS = 30
 FRAMES = 60
 SCALE = 0.01  # metres per file unit (centimetres)
@@ -62,20 +64,9 @@ CLIPS = ["walk", "arm_raise", "squat"]
 
 
 def _rot(axis: str, deg) -> np.ndarray:
-    """Row-vector rotation matrices (F, 3, 3) about a world axis by ``deg``
-    (right-handed, column-vector sense)."""
-    a = np.radians(np.asarray(deg, dtype=np.float64))
-    c, s = np.cos(a), np.sin(a)
-    m = np.zeros(a.shape + (3, 3))
-    i, j = {"x": (1, 2), "y": (2, 0), "z": (0, 1)}[axis]
-    k = "xyz".index(axis)
-    m[..., k, k] = 1.0
-    # column form R[i,i]=c R[i,j]=-s R[j,i]=s R[j,j]=c; row form is R.T
-    m[..., i, i] = c
-    m[..., j, j] = c
-    m[..., i, j] = s
-    m[..., j, i] = -s
-    return m
+    """Row-vector rotation matrices (F, 3, 3) about a world axis ("x", "y"
+    or "z") by ``deg`` (right-handed, column-vector sense)."""
+    return axis_rotation("xyz".index(axis), np.radians(np.asarray(deg, dtype=np.float64)))
 
 
 def forward_kinematics(rot: np.ndarray, root: np.ndarray) -> np.ndarray:
