@@ -485,3 +485,22 @@ def test_back_faces_lit():
             means.append(img[fg].mean())
     assert min(means) > 60, means
     assert abs(means[0] - means[1]) < 0.15 * max(means), means
+
+
+def test_tight_items_drawn_proud_of_the_skin(usd_dir):
+    """ref_female's suit is tight and low-poly: drawn at its true position the
+    skin bulges through between its vertices; the display offset hides that
+    (fewer skin-coloured pixels), while the body outside the suit stays."""
+    from wearfit_usd.render.preview import render_scene
+    from wearfit_usd.render.scene import read_scene
+    scene = read_scene(usd_dir / "ref_female.usda", None)
+    exact = render_scene(scene, size=(240, 360), camera="front", show_progress=False, item_offset=0.0)[0]
+    proud = render_scene(scene, size=(240, 360), camera="front", show_progress=False)[0]
+    body = next(m for m in scene.meshes if m.role == "body")
+    skin = (np.asarray(body.color) * 255).astype(float)
+
+    def skin_pixels(img):
+        return int((np.abs(img.astype(float) - skin).max(axis=2) < 40).sum())
+
+    assert skin_pixels(proud) < 0.7 * skin_pixels(exact)
+    assert skin_pixels(proud) > 500  # face, arms and hands still show

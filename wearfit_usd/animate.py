@@ -191,7 +191,8 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
     # regions as found on the reference in its rest pose (limbs apart): a
     # posed body (hands hanging beside a skirt) would hand skirt parts to the arms
     ref_plan = plan_dress(reference, k=opt.k)
-    labels = {"bind_labels": ref_plan.bind_labels, "skirt_items": ref_plan.skirt_items}
+    labels = {"bind_labels": ref_plan.bind_labels, "skirt_items": ref_plan.skirt_items,
+              "ref_clearance": ref_plan.ref_clearance}
     if opt.mode == "lbs" or opt.dress_pose == "bind":
         # dressed on the target's bind pose; frame 0 comes from the binding
         items_base, dress_timings = dress_items(reference, target, k=opt.k, **labels)
@@ -236,7 +237,8 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
         # plan as dressing (skirts from the hips, rigid parts, loose parts
         # smoothed): a linear evaluation per frame
         base = replace(target, body=body.copy_with_points(base_body), skeleton=base_skeleton, items=items)
-        frame_plan = plan_dress(base, k=opt.k, **labels)
+        frame_plan = plan_dress(base, k=opt.k, bind_labels=ref_plan.bind_labels,
+                                skirt_items=ref_plan.skirt_items)
         evaluator = lambda f, body_f: apply_plan(frame_plan, body_f, body.faces,  # noqa: E731
                                                  penetration=False)[0]
         items_for_skin = []

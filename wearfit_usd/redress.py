@@ -310,7 +310,8 @@ def plan(ref: Character, k: int = 5, use_regions: bool = True, rigid="auto",
          rigid_max_size: float = 0.4, rigid_min_clearance: float = 0.004,
          rigid_max_vertices: int = 4000, far: float = FAR_FROM_BODY,
          strict_far: bool = False, bind_labels: np.ndarray | None = None,
-         skirt_items: list[str] | None = None) -> DressPlan:
+         skirt_items: list[str] | None = None,
+         ref_clearance: np.ndarray | None = None) -> DressPlan:
     """Bind every item of ``ref`` to its body (done once per reference).
 
     bind_labels / skirt_items: the region of each item vertex (and the skirt
@@ -318,6 +319,11 @@ def plan(ref: Character, k: int = 5, use_regions: bool = True, rigid="auto",
         Regions are best told apart with the limbs away from the body: a posed
         body (hands hanging beside a skirt) would hand skirt vertices to the
         arms. Default: found on this body.
+    ref_clearance: (M,) clearance each item vertex keeps (signed distance to
+        the body it was authored on); default: measured on ``ref``. A posed
+        reference passes its rest-pose clearance: posing moves rigid parts
+        (a shoe over bending toes) through the skin, which is no reason to
+        leave them there.
 
     rigid: "auto" (small stiff parts, see :func:`_auto_rigid`), "none", or a
         list of item names moved rigidly as a whole (per body region).
@@ -371,7 +377,12 @@ def plan(ref: Character, k: int = 5, use_regions: bool = True, rigid="auto",
     # clearance to keep = true signed distance to the reference body (the
     # offset along a bound triangle's plane extrapolates: on a bent foot a
     # rigid shoe's plane offsets reach tens of centimetres)
-    ref_clear = SurfaceQuery(body.faces, body.points).signed_distance(pts)
+    if ref_clearance is None:
+        ref_clear = SurfaceQuery(body.faces, body.points).signed_distance(pts)
+    else:
+        if len(ref_clearance) != len(pts):
+            raise ValueError(f"ref_clearance has {len(ref_clearance)} entries for {len(pts)} item vertices")
+        ref_clear = np.asarray(ref_clearance, dtype=np.float64)
     far_mask = ref_clear > far
     if far_mask.any():
         names = [m.name for m, a, b in zip(items, offsets[:-1], offsets[1:]) if far_mask[a:b].any()]
@@ -440,8 +451,14 @@ class DressResult:
 
 def apply(plan_: DressPlan, body_points: np.ndarray, body_faces: np.ndarray,
           penetration: bool = True, query: SurfaceQuery | None = None, margin: float = 0.003,
-          near_other: float = 0.03):
+          near_other: float = 0.03, push_inherited: bool = True, inherited_clearance: float = 0.001):
     """Evaluate a plan on fitted body points (reference topology).
+
+    Vertices that end inside the body are pushed out to their reference
+    clearance; those that were inside the reference body already (a flaw of
+    the asset, e.g. a tight suit fitted by MakeHuman, which hides the skin
+    under clothes instead) by more than ``inherited_clearance`` are pushed out
+    to that clearance, unless ``push_inherited`` is False.
 
     Returns (points (M, 3), free points (M, 3), moved (M,) bool, timings).
     """
@@ -472,7 +489,11 @@ def apply(plan_: DressPlan, body_points: np.ndarray, body_faces: np.ndarray,
         normals = VertexNormals(body_faces, len(body_points))(body_points)
         est = np.einsum("ij,ij->i", pts - body_points[vn], normals[vn])
         cand |= est < margin
-        target = np.where(plan_.ref_clearance > 0, plan_.ref_clearance, np.nan)
+        # inherited: only deeper than inherited_clearance (skin showing through);
+        # shallower ones lie on the skin (eyebrows) and are left alone
+        inherited = push_inherited & (plan_.ref_clearance < -inherited_clearance)
+        target = np.where(plan_.ref_clearance > 0, plan_.ref_clearance,
+                          np.where(inherited, inherited_clearance, np.nan))
         debug(f"penetration pass: {int(cand.sum())} of {len(cand)} vertices tested")
         pts, moved = push_out(query, pts, target, mask=cand, neighbours=plan_.neighbours)
         if plan_.smoother is not None and np.any(moved & (plan_.looseness > 0)):
@@ -489,16 +510,19 @@ def apply(plan_: DressPlan, body_points: np.ndarray, body_faces: np.ndarray,
 def dress(ref: Character, target: Character, k: int = 5, use_regions: bool = True,
           rigid="auto", penetration: bool = True, body_points: np.ndarray | None = None,
           strict_far: bool = False, bind_labels: np.ndarray | None = None,
-          skirt_items: list[str] | None = None) -> DressResult:
+          skirt_items: list[str] | None = None, ref_clearance: np.ndarray | None = None,
+          push_inherited: bool = True) -> DressResult:
     """Put every item of ``ref`` on ``target``'s body (internal space).
-    ``bind_labels``/``skirt_items``: see :func:`plan`."""
+    ``bind_labels``/``skirt_items``/``ref_clearance``: see :func:`plan`;
+    ``push_inherited``: see :func:`apply`."""
     tb = time.perf_counter()
     if body_points is None:
         body_points = fitted_body_points(ref, target)
     t_fit = time.perf_counter() - tb
     p = plan(ref, k=k, use_regions=use_regions, rigid=rigid, strict_far=strict_far,
-             bind_labels=bind_labels, skirt_items=skirt_items)
-    pts, free, moved, tm = apply(p, body_points, ref.body.faces, penetration=penetration)
+             bind_labels=bind_labels, skirt_items=skirt_items, ref_clearance=ref_clearance)
+    pts, free, moved, tm = apply(p, body_points, ref.body.faces, penetration=penetration,
+                                 push_inherited=push_inherited)
     timings = {"body_fit_s": t_fit, **p.timings, **tm}
     keep_weights = (target.skeleton is not None and ref.skeleton is not None
                     and target.skeleton.joint_names == ref.skeleton.joint_names)

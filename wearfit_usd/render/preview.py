@@ -41,10 +41,37 @@ def resolve_track(scene: SceneDescription, camera: str = "auto", track: bool | N
     return should_track(*scene.frame_bounds())
 
 
+#: items are drawn this far (metres) proud of their true surface, outward
+#: from the body (display only): tight, low-poly garments let the curved
+#: skin bulge through between their vertices (MakeHuman hides the skin under
+#: clothes instead). Measurements and heat maps use the true points.
+ITEM_DISPLAY_OFFSET = 0.003
+
+
+def _outward_offsets(scene: SceneDescription, offset: float):
+    """Per item mesh: +1/-1 so that its vertex normals point away from the
+    body (decided once, on the first frame), or None without a body."""
+    from ..clearance import SurfaceQuery, VertexNormals
+    body = scene.body
+    if body is None or offset <= 0:
+        return {}
+    q = SurfaceQuery(body.faces, body.frames[0])
+    signs = {}
+    for m in scene.items:
+        if len(m.faces) == 0:
+            continue
+        normals = VertexNormals(m.faces, m.n_points)
+        away = m.frames[0] - q.closest(m.frames[0])["point"]
+        sign = 1.0 if np.einsum("ij,ij->", normals(m.frames[0]), away) >= 0 else -1.0
+        signs[id(m)] = (sign, normals)
+    return signs
+
+
 def render_scene(scene: SceneDescription, size=(640, 480), camera: str = "auto",
                  heatmap: bool = False, reference: SceneDescription | None = None,
                  antialias: bool = False, show_progress: bool = True,
-                 legend: bool = True, track: bool | None = None) -> list[np.ndarray]:
+                 legend: bool = True, track: bool | None = None,
+                 item_offset: float = ITEM_DISPLAY_OFFSET) -> list[np.ndarray]:
     """Render a :class:`SceneDescription` to (H, W, 3) uint8 images.
 
     camera: ``front|side|back|auto`` (one image per scene frame) or
@@ -56,7 +83,9 @@ def render_scene(scene: SceneDescription, size=(640, 480), camera: str = "auto",
     frames, None (default) tracks when the character travels more than half
     its height (:func:`resolve_track`). heatmap: colour items by clearance to
     the body (``reference``: by change of clearance versus the reference
-    scene's items). Raises ValueError for bad camera/size."""
+    scene's items). item_offset: items drawn this far (metres) outward from
+    the body, display only (see :data:`ITEM_DISPLAY_OFFSET`; 0 = exact).
+    Raises ValueError for bad camera/size."""
     from .offscreen import Renderer
     w, h = _parse_size(size)
     kind, angles = parse_camera(camera)
@@ -102,9 +131,14 @@ def render_scene(scene: SceneDescription, size=(640, 480), camera: str = "auto",
             it = progress(it, total=len(frame_ids), desc="render", unit="frame")
         last_view = None
         last_heat_frame = None
+        outward = _outward_offsets(scene, item_offset)
         for fi, view in it:
             for hd, m in zip(handles, scene.meshes):
-                r.set_points(hd, m.frames[fi])
+                pts = m.frames[fi]
+                if id(m) in outward:
+                    sign, normals = outward[id(m)]
+                    pts = pts + (sign * item_offset) * normals(pts)
+                r.set_points(hd, pts)
             stats = None
             if heatmap and fi != last_heat_frame:
                 last_heat_frame = fi
