@@ -170,3 +170,28 @@ def test_far_item_warns(ref_male, heavy):
     assert any("from the body" in str(x.message) for x in w)
     with pytest.raises(InputError):
         redress.dress(ref, heavy, strict_far=True)
+
+
+def test_layers_keep_their_order_on_a_heavier_body(tmp_path):
+    """Built-in samples: the short, heavy target's belly pushes the shirt out;
+    the skirt (hanging from the hips) must stay over it, and the shirt over
+    the undershirt, wherever they cover the same spot of the body."""
+    from scipy.spatial import cKDTree
+    from wearfit_usd.clearance import SurfaceQuery
+    from wearfit_usd.redress import dress
+    from wearfit_usd.samples import make_body, make_items, make_target
+    ref = make_body("reference")
+    ref.items = make_items(ref)
+    target = make_target("short_heavy", ref)
+    res = dress(ref, target)
+    names = [m.name for m in res.items]
+    order = {(names[i], names[j]) for i, j, _ in res.plan.layers}
+    assert {("skirt", "shirt"), ("shirt", "undershirt")} <= order
+    q = SurfaceQuery(target.body.faces, target.body.points)
+    out = {m.name: q.closest(m.points) for m in res.items}
+    for outer, inner in (("skirt", "shirt"), ("shirt", "undershirt")):
+        o, i = out[outer], out[inner]
+        d, k = cKDTree(i["point"]).query(o["point"], distance_upper_bound=0.02)
+        ok = np.isfinite(d)
+        below = o["distance"][ok] < i["distance"][k[ok]]
+        assert ok.sum() > 100 and below.mean() < 0.005, (outer, inner, below.mean())

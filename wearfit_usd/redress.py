@@ -83,6 +83,93 @@ def similarity_fit(src: np.ndarray, dst: np.ndarray, weights: np.ndarray | None 
 # --------------------------------------------------------------------------
 # penetration
 
+LAYER_RADIUS = 0.03   # m: items closer than this may lie over one another
+LAYER_MIN_GAP = 0.005  # m: separation kept between layers (or their reference gap if smaller): covers the sag of a coarse outer layer between its vertices
+
+
+def layer_pairs(items: list[Mesh], offsets: np.ndarray, points: np.ndarray, clearance: np.ndarray,
+                radius: float = LAYER_RADIUS):
+    """Which item lies over which, on the reference.
+
+    For every vertex of every item, the nearest vertex of each *other* item
+    within ``radius``; kept where this vertex is farther from the body (by
+    more than 0.5 mm): it is the outer layer there. Returns (outer (P,),
+    inner (P,), gap (P,)) indices into the stacked points and the reference
+    clearance difference (m)."""
+    outer, inner, gap = [], [], []
+    trees = [cKDTree(points[a:b]) for a, b in zip(offsets[:-1], offsets[1:])]
+    for i, (a, b) in enumerate(zip(offsets[:-1], offsets[1:])):
+        for j, (c, d) in enumerate(zip(offsets[:-1], offsets[1:])):
+            if i == j:
+                continue
+            dist, near = trees[j].query(points[a:b], k=1, distance_upper_bound=radius)
+            ok = np.isfinite(dist)
+            o = np.flatnonzero(ok) + a
+            n = near[ok] + c
+            g = clearance[o] - clearance[n]
+            keep = g > 0.0005
+            outer.append(o[keep])
+            inner.append(n[keep])
+            gap.append(g[keep])
+    if not outer:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
+    return np.concatenate(outer), np.concatenate(inner), np.concatenate(gap)
+
+
+def layer_order(items: list[Mesh], offsets: np.ndarray, points: np.ndarray, clearance: np.ndarray,
+                radius: float = LAYER_RADIUS, min_pairs: int = 20):
+    """Item-level layer order on the reference: [(outer item, inner item,
+    separation to keep (m))] for every pair of items that overlap, the outer
+    one being farther from the body at most of their close vertex pairs. The
+    separation is the median reference gap, capped at ``LAYER_MIN_GAP``."""
+    outer, inner, gap = layer_pairs(items, offsets, points, clearance, radius)
+    item_of = np.searchsorted(offsets, np.arange(len(points)), side="right") - 1
+    order = []
+    n = len(items)
+    for i in range(n):
+        for j in range(n):
+            if i == j:
+                continue
+            sel = (item_of[outer] == i) & (item_of[inner] == j)
+            rev = int(np.sum((item_of[outer] == j) & (item_of[inner] == i)))
+            if sel.sum() >= min_pairs and sel.sum() > 2 * rev:
+                order.append((i, j, float(min(np.median(gap[sel]), LAYER_MIN_GAP))))
+    return order
+
+
+def keep_layers(query: SurfaceQuery, pts: np.ndarray, offsets: np.ndarray, order: list,
+                radius: float = 0.02):
+    """Push outer-layer vertices out along the body normal until they clear
+    the item under them by the separation of :func:`layer_order`.
+
+    Both layers are compared over the same spot of the body: every vertex's
+    closest body point is its footprint, and an outer vertex is checked
+    against the inner item's vertex with the nearest footprint (within
+    ``radius``). Clearance to the body serves as the height, which works for
+    open garments. Returns (points, moved (M,) bool)."""
+    moved = np.zeros(len(pts), dtype=bool)
+    if not order:
+        return pts, moved
+    res = query.closest(pts)
+    c, foot, nrm = res["distance"], res["point"], res["normal"]
+    push = np.zeros(len(pts))
+    for i, j, sep in order:
+        oi = np.arange(offsets[i], offsets[i + 1])
+        ij = np.arange(offsets[j], offsets[j + 1])
+        d, k = cKDTree(foot[ij]).query(foot[oi], k=1, distance_upper_bound=radius)
+        ok = np.isfinite(d)
+        need = sep - (c[oi[ok]] - c[ij[k[ok]]])
+        np.maximum.at(push, oi[ok], np.where(need > 1e-4, need, 0.0))
+    sel = np.flatnonzero(push > 0)
+    if len(sel) == 0:
+        return pts, moved
+    nn = nrm[sel] / np.maximum(np.linalg.norm(nrm[sel], axis=1, keepdims=True), 1e-12)
+    out = pts.copy()
+    out[sel] += push[sel, None] * nn
+    moved[sel] = True
+    return out, moved
+
+
 LOOSE_START = 0.01   # m: vertices farther than this from the body start to be smoothed
 LOOSE_FULL = 0.04    # m: fully smoothed from here on
 LOOSE_ITERATIONS = 40  # diffusion time, in half-steps of neighbour averaging
@@ -244,6 +331,7 @@ class DressPlan:
     looseness: np.ndarray | None = None
     smoother: "LooseSmoother | None" = None
     bind_labels: np.ndarray | None = None   # (M,) regions used for binding (skirt parts: HIPS)
+    layers: list | None = None  # [(outer item, inner item, separation)]: :func:`layer_order`
     timings: dict = field(default_factory=dict)
 
     def item_slices(self):
@@ -434,6 +522,8 @@ def plan(ref: Character, k: int = 5, use_regions: bool = True, rigid="auto",
                      rigid_items=rigid_items, skirt_items=skirts, neighbours=neighbours,
                      looseness=loose, smoother=LooseSmoother(neighbours, loose),
                      bind_labels=region_labels,
+                     layers=[(i, j, g) for i, j, g in layer_order(items, offsets, pts, ref_clear)
+                             if items[i].name not in rigid_items],  # rigid parts move as a whole
                      ref_body=body.points,
                      timings={"regions_s": t1 - t0, "bind_s": t2 - t1, "plan_rest_s": t3 - t2})
 
@@ -503,6 +593,10 @@ def apply(plan_: DressPlan, body_points: np.ndarray, body_faces: np.ndarray,
             again = cand | moved
             pts, moved2 = push_out(query, pts, target, mask=again, neighbours=plan_.neighbours)
             moved |= moved2
+        if plan_.layers:
+            # layers keep their order: an outer item stays over the item under it
+            pts, moved3 = keep_layers(query, pts, plan_.offsets, plan_.layers)
+            moved |= moved3
     t2 = time.perf_counter()
     return pts, free, moved, {"evaluate_s": t1 - t0, "penetration_s": t2 - t1}
 
