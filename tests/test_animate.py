@@ -152,7 +152,7 @@ def test_pointed_foot_keeps_the_shoes_on(tmp_path, ref_female):
     """Dance clip, frame 0 (pointe tendue): dressing in that pose keeps every
     shoe vertex on the foot (the push-out once used an extrapolated plane
     offset as clearance and threw shoe vertices 0.3 m away)."""
-    from pxr import Usd, UsdGeom
+    from pxr import Usd, UsdSkel
     from wearfit_usd.clearance import SurfaceQuery
     target = read_character(USD_DIR / "body_female_heavy.usdc")
     clip = read_bvh(BVH_DIR / "cmu_05_12_dance_arms_held_high.bvh")
@@ -160,8 +160,6 @@ def test_pointed_foot_keeps_the_shoes_on(tmp_path, ref_female):
     animate(ref_female, target, clip, out, AnimateOptions(start=1, end=9, fps=30))
     stage = Usd.Stage.Open(str(out))
     shot = read_character(out)
-    local = None
-    from pxr import UsdSkel
     cache = UsdSkel.Cache()
     cache.Populate(UsdSkel.Root(stage.GetPrimAtPath("/Root/Character")), Usd.PrimDefaultPredicate)
     sq = cache.GetSkelQuery(UsdSkel.Skeleton(stage.GetPrimAtPath("/Root/Character/Skeleton")))

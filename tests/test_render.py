@@ -101,7 +101,7 @@ def _cube(size=1.0):
 def _write_animated(path):
     """3 frames: a skinned box whose joint swings (SkelAnimation) and a
     plain box with time-sampled points."""
-    from pxr import Gf, Sdf, Usd, UsdGeom, UsdSkel, Vt
+    from pxr import Gf, Usd, UsdGeom, UsdSkel, Vt
     stage = Usd.Stage.CreateNew(str(path))
     UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
     UsdGeom.SetStageMetersPerUnit(stage, 1.0)
@@ -109,7 +109,7 @@ def _write_animated(path):
     stage.SetEndTimeCode(2)
     stage.SetTimeCodesPerSecond(24)
     UsdGeom.Xform.Define(stage, "/World")
-    root = UsdSkel.Root.Define(stage, "/World/Char")
+    UsdSkel.Root.Define(stage, "/World/Char")
     skel = UsdSkel.Skeleton.Define(stage, "/World/Char/Skel")
     joints = ["root", "root/arm"]
     skel.CreateJointsAttr(joints)

@@ -190,7 +190,6 @@ def test_item_shapes(ref, items):
 
 def test_sample_set_round_trips_through_usd(tmp_path):
     from wearfit_usd.usd_io import read_character
-    from wearfit_usd.samples.body import BodyParams, _character, layout as lay_fn  # noqa: F401
     paths = write_sample_set(tmp_path, targets=["tall_thin", "curvy_remeshed"])
     assert set(paths) == {"reference", "target_tall_thin", "target_curvy_remeshed"}
     ref = make_body("reference")

@@ -26,8 +26,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .clearance import SurfaceQuery, VertexNormals
-from .model import Character, Mesh
-from .progress import info, progress, warn
+from .model import Character
+from .progress import info, progress
 from .skinning import Skinner, skin_points, skinning_matrices
 
 
@@ -54,15 +54,13 @@ class AnimateReport:
     timings: dict = field(default_factory=dict)
     per_frame_penetration: list = field(default_factory=list)  # fraction of item vertices
     worst_frame_penetration: float = 0.0
-    items: dict = field(default_factory=dict)
     mapping: dict = field(default_factory=dict)
-    warnings: list = field(default_factory=list)
 
     def as_dict(self) -> dict:
         return {"frames": self.frames, "fps": self.fps, "timings_s": self.timings,
                 "worst_frame_new_penetration_pct": 100 * self.worst_frame_penetration,
                 "per_frame_new_penetration_pct": [round(100 * x, 4) for x in self.per_frame_penetration],
-                "items": self.items, "mapping": self.mapping, "warnings": self.warnings}
+                "mapping": self.mapping}
 
 
 class PenetrationGuard:
@@ -96,19 +94,16 @@ class PenetrationGuard:
         self.decay = decay
         self.push = np.zeros(len(item_points0))   # current push amount (m)
         self.direction = np.zeros((len(item_points0), 3))
-        self.last_tree = None
 
-    def _estimate(self, body_points, item_points, tree, face_normal=None):
+    def _estimate(self, body_points, item_points, tree, face_normal):
         """Clearance estimate (M,): offset along the nearest body vertex's
         normal; +inf farther than 3 cm from every body vertex (cannot sink this frame)."""
         d, vi = tree.query(item_points, k=1, distance_upper_bound=0.03)
         far = np.isinf(d)
         vi[far] = 0
-        if face_normal is None:
-            vn = self.normals(body_points)
-        else:  # unit-face-normal sum: cheaper, good enough for an estimate
-            vn = self.normals.incidence @ face_normal
-            vn /= np.maximum(np.linalg.norm(vn, axis=1, keepdims=True), 1e-300)
+        # unit-face-normal sums: cheaper than area weights, good enough here
+        vn = self.normals.incidence @ face_normal
+        vn /= np.maximum(np.linalg.norm(vn, axis=1, keepdims=True), 1e-300)
         est = np.einsum("ij,ij->i", item_points - body_points[vi], vn[vi])
         est[far] = np.inf
         return est
@@ -117,7 +112,6 @@ class PenetrationGuard:
         """Return (corrected item points (M, 3), number of suspects that were
         inside by more than the margin before correction)."""
         tree = cKDTree(body_points)
-        self.last_tree = tree
         self.query.update(body_points)
         self.query.set_vertex_tree(tree)
         push = self.push * self.decay
@@ -176,7 +170,7 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
     world = rt.world
     n_frames = world.shape[0]
     rep.frames, rep.fps = n_frames, float(rt.fps)
-    rep.mapping = getattr(rt, "report", {}) if isinstance(getattr(rt, "report", {}), dict) else {}
+    rep.mapping = rt.report
     rep.timings["retarget"] = time.perf_counter() - t0
     info(f"retargeted {motion.path}: {n_frames} frames at {rt.fps:g} fps")
 

@@ -37,7 +37,6 @@ from dataclasses import asdict, dataclass, field, fields
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.spatial import cKDTree
 
 from .clearance import SurfaceQuery, face_normals, vertex_normals
 from .errors import GeometryError

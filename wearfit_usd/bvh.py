@@ -30,7 +30,6 @@ other joints with 3 rotation channels, ``End Site`` for leaves, Y up.
 from __future__ import annotations
 
 import math
-import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path

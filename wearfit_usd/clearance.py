@@ -330,13 +330,3 @@ def signed_distance(body_points: np.ndarray, body_faces: np.ndarray, query: np.n
     """(M,) signed distance (same units as the points; positive outside) from
     ``query`` (M, 3) to the closed mesh (body_points (N, 3), body_faces (T, 3))."""
     return SurfaceQuery(body_faces, body_points).signed_distance(query)
-
-
-def surface_distance_stats(a_points, a_faces, b_points, b_faces) -> dict:
-    """Chamfer-style point-to-surface distances (metres) in both directions:
-    vertices of A to surface B and vertices of B to surface A."""
-    ab = np.abs(SurfaceQuery(b_faces, b_points).signed_distance(a_points))
-    ba = np.abs(SurfaceQuery(a_faces, a_points).signed_distance(b_points))
-    return {"a_to_b_mean": float(ab.mean()), "a_to_b_p99": float(np.percentile(ab, 99)),
-            "a_to_b_max": float(ab.max()), "b_to_a_mean": float(ba.mean()),
-            "b_to_a_p99": float(np.percentile(ba, 99)), "b_to_a_max": float(ba.max())}

@@ -137,13 +137,6 @@ class Skeleton:
     def index(self, name: str) -> int:
         return self.joint_names.index(name)
 
-    def children(self) -> list[list[int]]:
-        out: list[list[int]] = [[] for _ in self.joint_names]
-        for j, p in enumerate(self.parents):
-            if p >= 0:
-                out[p].append(j)
-        return out
-
 
 @dataclass
 class Character:

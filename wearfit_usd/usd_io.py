@@ -22,8 +22,7 @@ import numpy as np
 from .clearance import vertex_normals
 from .errors import GeometryError, InputError, USDInputError
 from .model import Character, Mesh, Primvar, Skeleton
-from .transforms import (decompose, invert, quat_from_matrix, stage_to_internal,
-                         transform_points)
+from .transforms import invert, stage_to_internal, transform_points
 
 _SKIP_PRIMVARS = {"skel:jointIndices", "skel:jointWeights", "skel:geomBindTransform",
                   "skel:skinningMethod"}
@@ -418,7 +417,7 @@ def _safe_name(name: str) -> str:
     return s if s and not s[0].isdigit() else f"_{s}"
 
 
-def _author_mesh_topology(usd_mesh, mesh: Mesh, points_stage, with_normals=True):
+def _author_mesh_topology(usd_mesh, mesh: Mesh):
     from pxr import Sdf, UsdGeom, Vt
     usd_mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(mesh.face_vertex_counts.astype(np.int32)))
     usd_mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(mesh.face_vertex_indices.astype(np.int32)))
@@ -449,7 +448,7 @@ def _author_mesh_topology(usd_mesh, mesh: Mesh, points_stage, with_normals=True)
 def _author_skeleton(layout: _StageLayout, skeleton: Skeleton):
     """Skeleton prim at identity under the SkelRoot; transforms re-expressed
     so the stage's world pose equals the internal one."""
-    from pxr import Gf, UsdSkel, Vt
+    from pxr import UsdSkel, Vt
     out = Skeleton(skeleton.joint_names, skeleton.joint_paths, skeleton.parents,
                    skeleton.bind_world, skeleton.rest_local, layout.to_internal)
     bind_skel = skeleton.bind_world @ layout.from_internal
@@ -469,7 +468,7 @@ def _author_body(layout: _StageLayout, body: Mesh, skeleton: Skeleton | None):
     m = UsdGeom.Mesh.Define(layout.stage, layout.body_path)
     m.CreatePointsAttr(_vt_points(pts))
     m.CreateExtentAttr(_extent(pts))
-    _author_mesh_topology(m, body, pts)
+    _author_mesh_topology(m, body)
     if skeleton is not None and body.joint_indices is not None:
         api = UsdSkel.BindingAPI.Apply(m.GetPrim())
         api.CreateSkeletonRel().SetTargets([layout.skel_path])
@@ -527,7 +526,7 @@ def _author_static_item(layout, item: Mesh, skeleton: Skeleton | None):
     m = UsdGeom.Mesh.Define(layout.stage, ipath)
     m.CreatePointsAttr(_vt_points(pts))
     m.CreateExtentAttr(_extent(pts))
-    _author_mesh_topology(m, item, pts)
+    _author_mesh_topology(m, item)
     if item.normals_interpolation is not None:
         m.CreateNormalsAttr(_vt_points(vertex_normals(pts, item.faces) * (-1 if item.left_handed else 1)))
         m.SetNormalsInterpolation(UsdGeom.Tokens.vertex)

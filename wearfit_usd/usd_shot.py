@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .model import Character, Mesh, Skeleton
+from .model import Character, Mesh
 from .transforms import decompose, quat_from_matrix, transform_points
 from .usd_io import (_author_body, _author_mesh_topology, _author_skeleton, _extent,
                      _safe_name, _StageLayout, _vt_points)
@@ -93,7 +93,7 @@ class ShotWriter:
             ipath = self.layout.items_path.AppendChild(name)
             mesh = UsdGeom.Mesh.Define(self.stage, ipath)
             pts = transform_points(item.points, self.layout.from_internal)
-            _author_mesh_topology(mesh, item, pts)
+            _author_mesh_topology(mesh, item)
             if not self.clip_frames:
                 # default = reference shape, for tools that read without a time
                 # code (a default in the shot layer would hide value clips)
@@ -120,7 +120,7 @@ class ShotWriter:
         """Author the SkelAnimation from (F, J, 4, 4) joint transforms local to
         their parents, as :meth:`Skeleton.local_from_world` of the target
         skeleton returns them (target skeleton space)."""
-        from pxr import Gf, Sdf, UsdSkel, Vt
+        from pxr import UsdSkel, Vt
         skel = self.target.skeleton
         if skel is None:
             raise ValueError("target has no skeleton: cannot write a SkelAnimation")
@@ -154,7 +154,7 @@ class ShotWriter:
         k = frame // self.clip_frames
         if k != self._clip_index:
             self._close_clip()
-            from pxr import Usd, UsdGeom
+            from pxr import Usd
             self._clip_index = k
             name = f"items.{k:04d}.usdc"
             path = self._clip_dir_tmp / name
@@ -187,7 +187,7 @@ class ShotWriter:
             self._author(frame, pts, None)
 
     def _author(self, frame, pts, vel):
-        from pxr import UsdGeom, Vt
+        from pxr import UsdGeom
         stage = self._target_layer_for(frame)
         for i, (item, ipath, p) in enumerate(zip(self.items, self._item_prims, pts)):
             mesh = UsdGeom.Mesh(stage.GetPrimAtPath(ipath))

@@ -12,7 +12,7 @@ y = 0. ``BodyParams.height`` is the height of the top of the head.
 """
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, fields, replace
+from dataclasses import asdict, dataclass, fields
 
 import numpy as np
 

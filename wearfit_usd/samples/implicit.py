@@ -350,7 +350,6 @@ def surface_nets(values: np.ndarray, origin: np.ndarray, h: float):
 def vertex_adjacency(n: int, polys: np.ndarray):
     """Row-normalised (n, n) sparse adjacency of a polygon mesh (fixed arity)."""
     import scipy.sparse as sp
-    k = polys.shape[1]
     a = polys.ravel()
     b = np.roll(polys, -1, axis=1).ravel()
     rows = np.concatenate([a, b])

@@ -20,7 +20,7 @@ import numpy as np
 from ..model import Character, Mesh, Primvar
 from ..usd_io import triangulate, vertex_normals
 from .body import JOINT_NAMES, body_params, layout
-from .implicit import Solid, relax_on_surface, vertex_adjacency
+from .implicit import Solid, relax_on_surface
 
 #: clearance of each item above the skin, metres (lower bound of the offset)
 CLEARANCE = {
@@ -188,7 +188,6 @@ def _offset_patch(name: str, body: Mesh, solid: Solid, clearance: float, parts, 
     bone = np.asarray(JOINT_NAMES)[body.joint_indices[:, 0]]
     p0 = body.points
     keep = np.zeros(len(p0), bool)
-    plane_of = [[] for _ in range(len(p0))]
     for bones, planes in parts:
         m = np.isin(bone, list(bones))
         for n, d in planes:
