@@ -28,18 +28,19 @@ def _columns(rows: list[dict]) -> list[str]:
     return cols
 
 
+def _fmt(v) -> str:
+    """A table cell: floats to 4 significant digits, None empty."""
+    if isinstance(v, float):
+        return f"{v:.4g}" if abs(v) < 1e5 else f"{v:.3e}"
+    return "" if v is None else str(v)
+
+
 def format_table(rows: list[dict]) -> str:
     """Rows of dicts -> fixed-width text table (union of keys, in order)."""
     if not rows:
         return "(no rows)"
     cols = _columns(rows)
-
-    def fmt(v):
-        if isinstance(v, float):
-            return f"{v:.4g}" if abs(v) < 1e5 else f"{v:.3e}"
-        return "" if v is None else str(v)
-
-    cells = [[fmt(r.get(c)) for c in cols] for r in rows]
+    cells = [[_fmt(r.get(c)) for c in cols] for r in rows]
     widths = [max(len(c), *(len(row[i]) for row in cells)) for i, c in enumerate(cols)]
     line = "  ".join(c.ljust(w) for c, w in zip(cols, widths))
     out = [line, "  ".join("-" * w for w in widths)]
@@ -51,12 +52,6 @@ def markdown_table(rows: list[dict]) -> str:
     if not rows:
         return "(no rows)\n"
     cols = _columns(rows)
-
-    def fmt(v):
-        if isinstance(v, float):
-            return f"{v:.4g}"
-        return "" if v is None else str(v)
-
     out = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
-    out += ["| " + " | ".join(fmt(r.get(c)) for c in cols) + " |" for r in rows]
+    out += ["| " + " | ".join(_fmt(r.get(c)) for c in cols) + " |" for r in rows]
     return "\n".join(out) + "\n"

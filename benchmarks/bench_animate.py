@@ -109,15 +109,12 @@ def run_case(clip: str, ref_name: str, body_name: str, out_dir: Path, mode: str,
     ours = read_character(shot)
     # our LBS of the written file vs UsdSkel's
     from wearfit_usd.skinning import skin_mesh
-    from wearfit_usd.retarget import retarget
+    from pxr import Usd, UsdSkel
     errs = []
-    from pxr import UsdSkel, Usd
-    anim = UsdSkel.Animation(stage.GetPrimAtPath("/Root/Character/Animation"))
+    cache = UsdSkel.Cache()
+    cache.Populate(UsdSkel.Root(stage.GetPrimAtPath("/Root/Character")), Usd.PrimDefaultPredicate)
+    sq = cache.GetSkelQuery(UsdSkel.Skeleton(stage.GetPrimAtPath("/Root/Character/Skeleton")))
     for f in sample:
-        q = UsdSkel.Cache()
-        root = UsdSkel.Root(stage.GetPrimAtPath("/Root/Character"))
-        q.Populate(root, Usd.PrimDefaultPredicate)
-        sq = q.GetSkelQuery(UsdSkel.Skeleton(stage.GetPrimAtPath("/Root/Character/Skeleton")))
         local = np.array(sq.ComputeJointLocalTransforms(f))
         mine = skin_mesh(ours.body, ours.skeleton, ours.skeleton.world_from_local(local))
         ref_pts = transform_points(body[f], ours.to_internal)
@@ -138,7 +135,6 @@ def run_case(clip: str, ref_name: str, body_name: str, out_dir: Path, mode: str,
 def long_clip(out_dir: Path, frames: int = 10000) -> dict:
     """A `frames`-long clip (the walk repeated) animated at its native 120 fps
     in a subprocess: wall time, peak resident memory and the value clips."""
-    import resource
     import subprocess
     from wearfit_usd.bvh import read_bvh
     src = BVH_DIR / "cmu_07_01_walk.bvh"
