@@ -19,3 +19,5 @@ $PIP install "PyOpenGL==3.1.10" 2>&1 | grep -v -e "pyrender 0.1.45 requires PyOp
     -e "dependency resolver does not currently take into account" || true
 python3 -c "import OpenGL; assert OpenGL.__version__ == '3.1.10', OpenGL.__version__" 
 python3 -c "import wearfit_usd, pxr, pyrender; print('wearfit_usd installed')"
+# compile the numba kernels once now (cached beside the package), not on the first run
+python3 -m wearfit_usd.kernels

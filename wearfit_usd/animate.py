@@ -11,7 +11,8 @@ Pipeline (:func:`animate`):
 4. bind the dressed items to the target body at frame 0 (the region-aware
    plan of :mod:`redress`) and re-evaluate the binding every frame (one
    sparse product, plus rigid parts and loose-part smoothing), with a
-   temporally coherent penetration pass where needed (:class:`PenetrationGuard`);
+   temporally coherent penetration pass where needed
+   (:class:`penetration_guard.PenetrationGuard`);
 5. stream everything to one USD shot (:class:`usd_shot.ShotWriter`).
 
 ``mode="lbs"`` is the classic baseline instead: skin weights copied from the
@@ -23,10 +24,8 @@ import time
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from scipy.spatial import cKDTree
-
-from .clearance import SurfaceQuery, VertexNormals
 from .model import Character
+from .penetration_guard import PenetrationGuard
 from .progress import info, progress
 from .skinning import Skinner, skin_points, skinning_matrices
 
@@ -61,82 +60,6 @@ class AnimateReport:
                 "worst_frame_new_penetration_pct": 100 * self.worst_frame_penetration,
                 "per_frame_new_penetration_pct": [round(100 * x, 4) for x in self.per_frame_penetration],
                 "mapping": self.mapping}
-
-
-class PenetrationGuard:
-    """Per-frame push-out of item vertices that sink into the moving body.
-
-    Built once on the dressed frame: every item vertex keeps its clearance
-    ``c0`` (signed distance to the body at frame 0) and its 4 nearest body
-    triangles. Each frame, one KD-tree over the body vertices gives a cheap
-    clearance estimate (nearest vertex and its normal); the suspects (estimate
-    2 mm below its frame-0 value or under the margin, or still pushed) get
-    the exact closest point among their frame-0 triangles and the triangles
-    around their nearest vertex now (so a limb pressing into the torso is
-    seen), and are moved out along the surface normal to their clearance.
-    Temporal coherence: a push decays geometrically (``decay`` per frame)
-    instead of switching off, so vertices never pop; a decaying vertex is
-    tested again only when its clearance estimate (push included) drops.
-    """
-
-    def __init__(self, body_faces: np.ndarray, body_points0: np.ndarray, item_points0: np.ndarray,
-                 margin: float = 0.001, decay: float = 0.7):
-        self.faces = np.asarray(body_faces)
-        self.query = SurfaceQuery(self.faces, body_points0)
-        self.normals = VertexNormals(self.faces, len(body_points0))
-        c0 = self.query.signed_distance(item_points0)
-        _, self.cand0 = self.query._ctree.query(item_points0, k=4)
-        self.approx0 = self._estimate(body_points0, item_points0, cKDTree(body_points0),
-                                      self.query.face_normal)
-        self.outside0 = c0 > -margin           # only guard vertices that start outside
-        self.target = np.clip(c0, margin, None)  # clearance to restore (>= margin)
-        self.margin = margin
-        self.decay = decay
-        self.push = np.zeros(len(item_points0))   # current push amount (m)
-        self.direction = np.zeros((len(item_points0), 3))
-
-    def _estimate(self, body_points, item_points, tree, face_normal):
-        """Clearance estimate (M,): offset along the nearest body vertex's
-        normal; +inf farther than 3 cm from every body vertex (cannot sink this frame)."""
-        d, vi = tree.query(item_points, k=1, distance_upper_bound=0.03)
-        far = np.isinf(d)
-        vi[far] = 0
-        # unit-face-normal sums: cheaper than area weights, good enough here
-        vn = self.normals.incidence @ face_normal
-        vn /= np.maximum(np.linalg.norm(vn, axis=1, keepdims=True), 1e-300)
-        est = np.einsum("ij,ij->i", item_points - body_points[vi], vn[vi])
-        est[far] = np.inf
-        return est
-
-    def apply(self, body_points: np.ndarray, item_points: np.ndarray):
-        """Return (corrected item points (M, 3), number of suspects that were
-        inside by more than the margin before correction)."""
-        tree = cKDTree(body_points)
-        self.query.update(body_points)
-        self.query.set_vertex_tree(tree)
-        push = self.push * self.decay
-        pre = item_points + push[:, None] * self.direction
-        approx = self._estimate(body_points, pre, tree, self.query.face_normal)
-        # suspects: with the (decaying) push applied, the estimated clearance
-        # dropped by 2 mm since frame 0 or is below the margin
-        suspect = self.outside0 & ((approx < self.approx0 - 0.002) | (approx < self.margin))
-        idx = np.flatnonzero(suspect)
-        n_inside = 0
-        if len(idx):
-            res = self.query.closest(item_points[idx], candidates=self.cand0[idx])
-            dist = res["distance"]
-            n = res["normal"]
-            n = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
-            n_inside = int(np.sum(dist < -self.margin))
-            need = np.where(dist < self.target[idx], self.target[idx] - dist, 0.0)
-            push[idx] = np.maximum(need, push[idx])
-            self.direction[idx] = n
-        push[push < 1e-5] = 0.0
-        self.push = push
-        moving = np.flatnonzero(push)
-        out = item_points.copy()
-        out[moving] += push[moving, None] * self.direction[moving]
-        return out, n_inside
 
 
 def _posed_skeleton(skeleton, world0):
@@ -261,7 +184,7 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
             td = time.perf_counter()
             t_pen += td - tc
             if opt.measure_every and (f % opt.measure_every == 0 or f == n_frames - 1):
-                rep.per_frame_penetration.append(_inside_fraction(guard, body_f, pts))
+                rep.per_frame_penetration.append(guard.inside_fraction(body_f, pts))
                 tm = time.perf_counter()
                 t_measure += tm - td
                 td = tm
@@ -280,22 +203,6 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
                         "write_fps": n_frames / max(t_write, 1e-9),
                         "total": time.perf_counter() - t_all})
     return rep
-
-
-def _inside_fraction(guard: PenetrationGuard, body_points, pts) -> float:
-    """Fraction of guarded item vertices (outside the body at frame 0) that
-    are inside the body by more than the margin now. Exact closest-point test
-    for every vertex whose cheap estimate (nearest body vertex and its normal)
-    is under 1 cm; the others are clearly outside."""
-    tree = cKDTree(body_points)
-    guard.query.update(body_points)
-    est = guard._estimate(body_points, pts, tree, guard.query.face_normal)
-    near = np.flatnonzero(guard.outside0 & (est < 0.01))
-    if len(near) == 0:
-        return 0.0
-    guard.query.set_vertex_tree(tree)
-    sd = guard.query.closest(pts[near], candidates=guard.cand0[near])["distance"]
-    return float(np.sum(sd < -guard.margin)) / max(int(guard.outside0.sum()), 1)
 
 
 class _LBSEvaluator:

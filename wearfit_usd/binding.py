@@ -28,6 +28,7 @@ import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
 from .clearance import closest_point_on_triangles
+from .kernels import binding_eval
 
 
 def triangle_frames(points: np.ndarray, faces: np.ndarray):
@@ -103,22 +104,8 @@ class Binding:
         (F, N, 3) -> (F, M, 3). One sparse product per call."""
         p = np.asarray(body_points, dtype=np.float64)
         if p.ndim == 2:
-            nb, u = self.n_body, len(self.used)
-            buf = self._buf
-            buf[:nb] = p
-            t = np.take(p, self._corners, axis=0)
-            v1 = t[:u]
-            e1 = t[u:2 * u] - v1
-            e2 = t[2 * u:] - v1
-            n = buf[nb:]  # written in place: cross product by components
-            n[:, 0] = e1[:, 1] * e2[:, 2] - e1[:, 2] * e2[:, 1]
-            n[:, 1] = e1[:, 2] * e2[:, 0] - e1[:, 0] * e2[:, 2]
-            n[:, 2] = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
-            ln = np.sqrt(np.einsum("ij,ij->i", n, n))
-            np.maximum(ln, 1e-300, out=ln)
-            n /= ln[:, None]
-            n += v1
-            return self._compact @ buf
+            return binding_eval(np.ascontiguousarray(p), self._corners, len(self.used), self._compact,
+                                self._buf)
         f = p.shape[0]
         st = np.empty((self._compact.shape[1], f, 3))
         st[:self.n_body] = p.transpose(1, 0, 2)

@@ -15,6 +15,9 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
+from .kernels import HAVE_NUMBA, closest_candidates
+from .kernels import face_normals as _compiled_face_normals
+
 # feature codes returned by closest_point_on_triangles
 FACE, EDGE01, EDGE12, EDGE20, VERT0, VERT1, VERT2 = range(7)
 
@@ -87,6 +90,8 @@ def closest_point_on_triangles(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: n
 
 def face_normals(points: np.ndarray, faces: np.ndarray, unit: bool = True) -> np.ndarray:
     """(T, 3) triangle normals (unit, or area-weighted x2 if not unit)."""
+    if HAVE_NUMBA:
+        return _compiled_face_normals(points, faces, unit)
     p0 = points[faces[:, 0]]
     a = points[faces[:, 1]] - p0
     b = points[faces[:, 2]] - p0
@@ -130,7 +135,7 @@ class SurfaceQuery:
     """
 
     def __init__(self, faces: np.ndarray, points: np.ndarray | None = None):
-        self.faces = np.asarray(faces, dtype=np.int64)
+        self.faces = np.ascontiguousarray(faces, dtype=np.int64)
         t = len(self.faces)
         # undirected edge ids for the three edges of every face (01, 12, 20)
         e = np.stack([self.faces[:, [0, 1]], self.faces[:, [1, 2]], self.faces[:, [2, 0]]], axis=1)
@@ -153,26 +158,39 @@ class SurfaceQuery:
             self.update(points)
 
     def update(self, points: np.ndarray) -> "SurfaceQuery":
-        """Move the surface to (N, 3) points. Face and edge normals are
-        recomputed now; vertex pseudo-normals and the KD-trees lazily, for
-        what the next queries need."""
-        p = np.asarray(points, dtype=np.float64)
+        """Move the surface to (N, 3) points. Face normals are recomputed
+        now; edge and vertex pseudo-normals, the per-triangle tables of the
+        numpy closest-point path and the KD-trees lazily, for what the next
+        queries need."""
+        p = np.ascontiguousarray(points, dtype=np.float64)
         self.points = p
-        fn = face_normals(p, self.faces, unit=True)
-        self.face_normal = fn
-        self._a = p[self.faces[:, 0]]
-        self._ab = p[self.faces[:, 1]] - self._a
-        self._ac = p[self.faces[:, 2]] - self._a
-        self._d00 = np.einsum("ij,ij->i", self._ab, self._ab)
-        self._d01 = np.einsum("ij,ij->i", self._ab, self._ac)
-        self._d11 = np.einsum("ij,ij->i", self._ac, self._ac)
-        # edge pseudo-normals: sum of the adjacent faces' unit normals
-        self.edge_normal = self._edge_inc @ fn
+        self.face_normal = face_normals(p, self.faces, unit=True)
+        self._edge_normal = None
+        self._tri = None
         self._vertex_normal = None
         self._centroids = None
         self._ctree_cache = None
         self._vtree_cache = None
         return self
+
+    @property
+    def edge_normal(self) -> np.ndarray:
+        """(E, 3) edge pseudo-normals: sum of the adjacent faces' unit normals."""
+        if self._edge_normal is None:
+            self._edge_normal = self._edge_inc @ self.face_normal
+        return self._edge_normal
+
+    def _triangle_table(self):
+        """Corner a, edges ab, ac and their dot products for every face (the
+        numpy closest-point path)."""
+        if self._tri is None:
+            p = self.points
+            a = p[self.faces[:, 0]]
+            ab = p[self.faces[:, 1]] - a
+            ac = p[self.faces[:, 2]] - a
+            self._tri = (a, ab, ac, np.einsum("ij,ij->i", ab, ab), np.einsum("ij,ij->i", ab, ac),
+                         np.einsum("ij,ij->i", ac, ac))
+        return self._tri
 
     @property
     def centroids(self) -> np.ndarray:
@@ -278,16 +296,23 @@ class SurfaceQuery:
 
     def _eval_candidates(self, q, ci):
         """Best of the candidate triangles ci (M, c) for each query point."""
-        ap = q[:, None, :] - self._a[ci]  # (M, c, 3)
+        if HAVE_NUMBA:
+            d2, sb, tb, inside, f = closest_candidates(q, ci, self.points, self.faces)
+            a = self.points[self.faces[f, 0]]
+            cp = (a + sb[:, None] * (self.points[self.faces[f, 1]] - a)
+                  + tb[:, None] * (self.points[self.faces[f, 2]] - a))
+            return d2, cp, np.stack([1.0 - sb - tb, sb, tb], axis=1), _feature(sb, tb, inside), f
+        a, ab, ac, d00, d01, d11 = self._triangle_table()
+        ap = q[:, None, :] - a[ci]  # (M, c, 3)
         app = np.einsum("mci,mci->mc", ap, ap)
-        d20 = np.einsum("mci,mci->mc", ap, self._ab[ci])
-        d21 = np.einsum("mci,mci->mc", ap, self._ac[ci])
-        s, t, d2, inside = _closest_params(app, d20, d21, self._d00[ci], self._d01[ci], self._d11[ci])
+        d20 = np.einsum("mci,mci->mc", ap, ab[ci])
+        d21 = np.einsum("mci,mci->mc", ap, ac[ci])
+        s, t, d2, inside = _closest_params(app, d20, d21, d00[ci], d01[ci], d11[ci])
         best = np.argmin(d2, axis=1)
         r = np.arange(len(q))
         f = ci[r, best]
         sb, tb = s[r, best], t[r, best]
-        cp = self._a[f] + sb[:, None] * self._ab[f] + tb[:, None] * self._ac[f]
+        cp = a[f] + sb[:, None] * ab[f] + tb[:, None] * ac[f]
         bary = np.stack([1.0 - sb - tb, sb, tb], axis=1)
         return d2[r, best], cp, bary, _feature(sb, tb, inside[r, best]), f
 
