@@ -110,6 +110,8 @@ class ShotWriter:
         self.stage.SetFramesPerSecond(self.fps)
         self._prev = None  # (frame, [points_stage]) for velocities (one-frame delay)
         self._prev_vel = None
+        self._attr_stage = None   # stage the cached attributes belong to
+        self._attr_cache = []
         self._clip_layer = None
         self._clip_index = -1
         self._clip_stage = None
@@ -186,23 +188,37 @@ class ShotWriter:
         else:
             self._author(frame, pts, None)
 
-    def _author(self, frame, pts, vel):
+    def _attributes(self, stage):
+        """Per item: (points, extent, normals or None, velocities or None)
+        attributes on ``stage`` (the shot or the current clip layer), created
+        once per stage."""
         from pxr import UsdGeom
-        stage = self._target_layer_for(frame)
-        for i, (item, ipath, p) in enumerate(zip(self.items, self._item_prims, pts)):
+        if self._attr_stage is stage:
+            return self._attr_cache
+        out = []
+        for item, ipath in zip(self.items, self._item_prims):
             mesh = UsdGeom.Mesh(stage.GetPrimAtPath(ipath))
             if not mesh:
                 mesh = UsdGeom.Mesh(stage.OverridePrim(ipath))
-            (mesh.GetPointsAttr() or mesh.CreatePointsAttr()).Set(_vt_points(p), frame)
-            ext = mesh.GetExtentAttr() or mesh.CreateExtentAttr()
-            ext.Set(_extent(p), frame)
+            na = None
             if item.normals_interpolation is not None:
-                n = self._normals[i](p) * (-1 if item.left_handed else 1)
                 na = mesh.GetNormalsAttr() or mesh.CreateNormalsAttr()
-                na.Set(_vt_points(n), frame)
                 mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
+            va = (mesh.GetVelocitiesAttr() or mesh.CreateVelocitiesAttr()) if self.velocities else None
+            out.append((mesh.GetPointsAttr() or mesh.CreatePointsAttr(),
+                        mesh.GetExtentAttr() or mesh.CreateExtentAttr(), na, va))
+        self._attr_stage, self._attr_cache = stage, out
+        return out
+
+    def _author(self, frame, pts, vel):
+        stage = self._target_layer_for(frame)
+        for i, (item, p, (pa, ea, na, va)) in enumerate(zip(self.items, pts, self._attributes(stage))):
+            pa.Set(_vt_points(p), frame)
+            ea.Set(_extent(p), frame)
+            if na is not None:
+                n = self._normals[i](p) * (-1 if item.left_handed else 1)
+                na.Set(_vt_points(n), frame)
             if vel is not None:
-                va = mesh.GetVelocitiesAttr() or mesh.CreateVelocitiesAttr()
                 va.Set(_vt_points(vel[i]), frame)
         self._written[frame] = True
 
