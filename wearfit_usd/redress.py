@@ -138,7 +138,7 @@ def layer_order(items: list[Mesh], offsets: np.ndarray, points: np.ndarray, clea
 
 
 def keep_layers(query: SurfaceQuery, pts: np.ndarray, offsets: np.ndarray, order: list,
-                radius: float = 0.02):
+                radius: float = 0.02, mask: np.ndarray | None = None, footprints: dict | None = None):
     """Push outer-layer vertices out along the body normal until they clear
     the item under them by the separation of :func:`layer_order`.
 
@@ -146,15 +146,24 @@ def keep_layers(query: SurfaceQuery, pts: np.ndarray, offsets: np.ndarray, order
     closest body point is its footprint, and an outer vertex is checked
     against the inner item's vertex with the nearest footprint (within
     ``radius``). Clearance to the body serves as the height, which works for
-    open garments. Returns (points, moved (M,) bool)."""
+    open garments.
+    mask: (M,) bool, the only vertices that may be pushed (default all).
+    footprints: {"distance" (M,), "point" (M, 3), "normal" (M, 3)}: the
+        closest body points of ``pts`` when already known (e.g. refreshed for
+        the few vertices that moved); default: queried for all.
+    Returns (points, moved (M,) bool)."""
     moved = np.zeros(len(pts), dtype=bool)
     if not order:
         return pts, moved
-    res = query.closest(pts)
+    res = query.closest(pts) if footprints is None else footprints
     c, foot, nrm = res["distance"], res["point"], res["normal"]
     push = np.zeros(len(pts))
     for i, j, sep in order:
         oi = np.arange(offsets[i], offsets[i + 1])
+        if mask is not None:
+            oi = oi[mask[oi]]
+            if len(oi) == 0:
+                continue
         ij = np.arange(offsets[j], offsets[j + 1])
         d, k = cKDTree(foot[ij]).query(foot[oi], k=1, distance_upper_bound=radius)
         ok = np.isfinite(d)
@@ -332,6 +341,8 @@ class DressPlan:
     smoother: "LooseSmoother | None" = None
     bind_labels: np.ndarray | None = None   # (M,) regions used for binding (skirt parts: HIPS)
     layers: list | None = None  # [(outer item, inner item, separation)]: :func:`layer_order`
+    item_faces: np.ndarray | None = None  # (F, 3) triangles of all items, stacked vertex indices
+    item_edges: np.ndarray | None = None  # (E, 2) their unique edges
     timings: dict = field(default_factory=dict)
 
     def item_slices(self):
@@ -508,6 +519,7 @@ def plan(ref: Character, k: int = 5, use_regions: bool = True, rigid="auto",
         if groups:
             rigid_items.append(item.name)
     neighbours = sp.block_diag(blocks, format="csr")
+    item_faces = np.concatenate([m.faces + a for m, a in zip(items, offsets[:-1])]).astype(np.int64)
     skirt_mask = np.zeros(len(pts), dtype=bool)
     for item, a, b in zip(items, offsets[:-1], offsets[1:]):
         if item.name in skirts:
@@ -524,7 +536,7 @@ def plan(ref: Character, k: int = 5, use_regions: bool = True, rigid="auto",
                      bind_labels=region_labels,
                      layers=[(i, j, g) for i, j, g in layer_order(items, offsets, pts, ref_clear)
                              if items[i].name not in rigid_items],  # rigid parts move as a whole
-                     ref_body=body.points,
+                     ref_body=body.points, item_faces=item_faces, item_edges=edges(item_faces),
                      timings={"regions_s": t1 - t0, "bind_s": t2 - t1, "plan_rest_s": t3 - t2})
 
 
@@ -541,7 +553,8 @@ class DressResult:
 
 def apply(plan_: DressPlan, body_points: np.ndarray, body_faces: np.ndarray,
           penetration: bool = True, query: SurfaceQuery | None = None, margin: float = 0.003,
-          near_other: float = 0.03, push_inherited: bool = True, inherited_clearance: float = 0.001):
+          near_other: float = 0.03, push_inherited: bool = True, inherited_clearance: float = 0.001,
+          untangle: bool = True):
     """Evaluate a plan on fitted body points (reference topology).
 
     Vertices that end inside the body are pushed out to their reference
@@ -550,14 +563,21 @@ def apply(plan_: DressPlan, body_points: np.ndarray, body_faces: np.ndarray,
     under clothes instead) by more than ``inherited_clearance`` are pushed out
     to that clearance, unless ``push_inherited`` is False.
 
+    untangle: after the penetration and layer passes, re-solve the
+    neighbourhoods of folded item triangles and badly stretched edges so they
+    deform like the body under them, under the same constraints
+    (:func:`untangle_items`; only with ``penetration``).
+
     Returns (points (M, 3), free points (M, 3), moved (M,) bool, timings).
     """
     t0 = time.perf_counter()
     free = plan_.binding.evaluate(body_points)
     pts = free.copy()
+    rigid_maps = []
     for gv, bv, bw in plan_.rigid_groups:
         s, rot, t = similarity_fit(plan_.ref_body[bv], body_points[bv], bw)
         pts[gv] = s * plan_.ref_points[gv] @ rot + t
+        rigid_maps.append((gv, s * rot))
     if plan_.smoother is not None:
         pts = plan_.smoother(pts, plan_.ref_points)
     t1 = time.perf_counter()
@@ -598,7 +618,82 @@ def apply(plan_: DressPlan, body_points: np.ndarray, body_faces: np.ndarray,
             pts, moved3 = keep_layers(query, pts, plan_.offsets, plan_.layers)
             moved |= moved3
     t2 = time.perf_counter()
-    return pts, free, moved, {"evaluate_s": t1 - t0, "penetration_s": t2 - t1}
+    timings = {"evaluate_s": t1 - t0, "penetration_s": t2 - t1}
+    if penetration and untangle:
+        pts, touched, stats = untangle_items(plan_, body_points, pts, query, target, rigid_maps)
+        moved |= touched
+        timings["untangle_s"] = time.perf_counter() - t2
+        debug(f"untangle: {stats}")
+    return pts, free, moved, timings
+
+
+def untangle_items(plan_: DressPlan, body_points: np.ndarray, pts: np.ndarray, query: SurfaceQuery,
+                   target: np.ndarray, rigid_maps: list, bisect_steps: int = 5, **kw):
+    """Run :func:`untangle.untangle` on redressed items (points (M, 3)):
+    vertex gradients from the binding (rigid parts: their similarity
+    ``s * rot`` from ``rigid_maps`` [(vertex indices, (3, 3))]), constraints
+    = :func:`push_out` to ``target`` (M,) clearance (m) and
+    :func:`keep_layers`, both restricted to the re-solved vertices.
+    Returns (points (M, 3), touched (M,) bool, stats dict)."""
+    from . import untangle as U
+    b = plan_.binding
+    tg = np.tile(np.eye(3), (len(b.faces), 1, 1))
+    tg[b.used] = U.triangle_gradients(plan_.ref_body, body_points, b.faces[b.used])
+    grad = U.vertex_gradients(tg, b.triangles, b.weights)
+    for gv, lin in rigid_maps:
+        grad[gv] = lin
+    faces = plan_.item_faces
+    if faces is None:
+        faces = np.concatenate([m.faces + a for m, a in zip(plan_.items, plan_.offsets[:-1])]).astype(np.int64)
+    item_edges = plan_.item_edges if plan_.item_edges is not None else edges(faces)
+    tgt = np.nan_to_num(np.asarray(target, dtype=np.float64), nan=-1.0)
+    footprints = None
+    if plan_.layers:
+        res = query.closest(pts)
+        footprints = {k: res[k] for k in ("distance", "point", "normal")}
+
+    def constrain(p, mask, before):
+        # push_out and keep_layers with one closest-point query of the masked
+        # vertices. A vertex the solve took inside goes back along its own
+        # path to where it re-enters its clearance (bisection between its
+        # valid position before the solve and the new one), not to the
+        # closest skin point, which can lie on the far side of a thin gap
+        # (armpit, crotch) and fold the patch.
+        sel = np.flatnonzero(mask)
+        res = query.closest(p[sel], ring=False)
+        p = p.copy()
+        moved = np.zeros(len(p), dtype=bool)
+        inside = (res["distance"] < 0) & (tgt[sel] > 0)
+        pushed = sel[inside]
+        if len(pushed):
+            lo = np.zeros(len(pushed))  # fraction of the step known to be fine
+            hi = np.ones(len(pushed))
+            a, b = before[pushed], p[pushed]
+            for _ in range(bisect_steps):
+                mid = 0.5 * (lo + hi)
+                d = query.closest(a + mid[:, None] * (b - a), ring=False)["distance"]
+                ok = d >= np.minimum(tgt[pushed], 0.0005)
+                lo = np.where(ok, mid, lo)
+                hi = np.where(ok, hi, mid)
+            p[pushed] = a + lo[:, None] * (b - a)
+            # still inside (the start was inside too): closest skin point
+            r2 = query.closest(p[pushed])
+            bad = r2["distance"] < 0
+            n = r2["normal"][bad]
+            n = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+            p[pushed[bad]] = r2["point"][bad] + n * tgt[pushed[bad], None]
+            r2["distance"][bad] = tgt[pushed[bad]]
+            for k in ("distance", "point", "normal"):
+                res[k][inside] = r2[k]
+        moved[pushed] = True
+        if plan_.layers:
+            for k in footprints:
+                footprints[k][sel] = res[k]
+            p, moved2 = keep_layers(query, p, plan_.offsets, plan_.layers, mask=mask, footprints=footprints)
+            moved |= moved2
+        return p, moved
+
+    return U.untangle(plan_.ref_points, pts, faces, item_edges, plan_.neighbours, grad, constrain, **kw)
 
 
 def dress(ref: Character, target: Character, k: int = 5, use_regions: bool = True,

@@ -1,0 +1,237 @@
+"""Untangle: relax folded or over-stretched item patches towards the body's
+local deformation.
+
+Evaluating a binding keeps each item vertex at its offset above its bound
+body triangles. Where that offset is larger than the body's local radius of
+curvature (a ponytail far from a thin neck, a jacket over a muscular armpit)
+the offset surface folds over itself: item triangles flip and edges shrink
+or grow far more than the skin under them. Independent per-vertex
+corrections (pushing penetrating vertices out to the body surface, lifting
+an outer layer) do the same at a smaller scale.
+
+The cure here is local: the item's *shape* should change like the body does
+locally, i.e. every item edge ``r_j - r_i`` (reference) should become
+``(r_j - r_i) @ G`` with ``G`` the body's local deformation gradient (3, 3),
+row-vector convention, blended over the vertex's bound triangles with the
+binding weights. On the vertices of bad elements and a few rings around
+them, positions are found by a small sparse least-squares solve
+
+    min  sum_edges w_e |x_j - x_i - g_ij|^2  +  eps sum_i w_i |x_i - p_i|^2
+
+with all other vertices fixed where they are (a Poisson reconstruction of
+the patch from the target edge vectors, glued to the unchanged rest).
+
+Units: those of the points (metres internally); gradients are unitless.
+"""
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+FLIP_COS = 0.0     # a triangle is folded when its normal and the expected one make > 90 degrees
+STRETCH_LO = 0.8   # edge length / expected edge length below this: over-compressed
+STRETCH_HI = 1.25  # ... above this: over-stretched
+
+
+def triangle_gradients(ref_body: np.ndarray, fit_body: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Deformation gradient (T, 3, 3) of every body triangle, row-vector
+    convention: a vector ``v`` near triangle t on the reference becomes
+    ``v @ G[t]`` on the fitted body. Built from the frames
+    ``[e1; e2; unit normal]`` (edges in metres), so offsets along the normal
+    keep their length (as in the binding). Degenerate triangles get the
+    identity."""
+    def frame(p):
+        v0 = p[faces[:, 0]]
+        e1 = p[faces[:, 1]] - v0
+        e2 = p[faces[:, 2]] - v0
+        n = np.cross(e1, e2)
+        ln = np.linalg.norm(n, axis=1)
+        n = n / np.where(ln < 1e-300, 1.0, ln)[:, None]
+        return np.stack([e1, e2, n], axis=1), ln
+
+    er, lr = frame(np.asarray(ref_body, dtype=np.float64))
+    ef, _ = frame(np.asarray(fit_body, dtype=np.float64))
+    ok = lr > 1e-10 * max(float(np.median(lr)), 1e-300)
+    g = np.tile(np.eye(3), (len(faces), 1, 1))
+    g[ok] = np.linalg.solve(er[ok], ef[ok])
+    return g
+
+
+def vertex_gradients(tri_grad: np.ndarray, triangles: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """(M, 3, 3) gradient per item vertex: the binding-weighted blend of the
+    gradients (T, 3, 3) of its bound triangles (M, k) with weights (M, k)."""
+    return np.einsum("mk,mkij->mij", weights, tri_grad[triangles])
+
+
+def edge_targets(ref_pts: np.ndarray, grad: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    """(E, 3) expected edge vectors ``(r_j - r_i) @ (G_i + G_j) / 2`` for
+    edges (E, 2) of reference points (M, 3) and vertex gradients (M, 3, 3)."""
+    d = ref_pts[edges[:, 1]] - ref_pts[edges[:, 0]]
+    return 0.5 * np.einsum("ei,eij->ej", d, grad[edges[:, 0]] + grad[edges[:, 1]])
+
+
+def bad_elements(ref_pts: np.ndarray, pts: np.ndarray, faces: np.ndarray, edges: np.ndarray,
+                 grad: np.ndarray, lo: float = STRETCH_LO, hi: float = STRETCH_HI):
+    """Folded triangles and badly stretched edges.
+
+    ref_pts/pts (M, 3) item before/after, faces (F, 3), edges (E, 2),
+    grad (M, 3, 3) vertex gradients. A triangle is folded when its normal
+    opposes the normal of its expected shape (reference corners mapped by the
+    mean gradient of its corners); an edge is bad when its length leaves
+    [lo, hi] x its expected length (:func:`edge_targets`).
+    Returns (folded (F,) bool, bad edges (E,) bool).
+    """
+    gf = grad[faces].mean(axis=1)
+    r0 = ref_pts[faces[:, 0]]
+    a = np.einsum("fi,fij->fj", ref_pts[faces[:, 1]] - r0, gf)
+    b = np.einsum("fi,fij->fj", ref_pts[faces[:, 2]] - r0, gf)
+    n_exp = np.cross(a, b)
+    p0 = pts[faces[:, 0]]
+    n_new = np.cross(pts[faces[:, 1]] - p0, pts[faces[:, 2]] - p0)
+    ref_area = np.linalg.norm(np.cross(ref_pts[faces[:, 1]] - r0, ref_pts[faces[:, 2]] - r0), axis=1)
+    folded = (np.einsum("fi,fi->f", n_exp, n_new) < 0) & (ref_area > 1e-12)
+    g = np.linalg.norm(edge_targets(ref_pts, grad, edges), axis=1)
+    ln = np.linalg.norm(pts[edges[:, 1]] - pts[edges[:, 0]], axis=1)
+    ratio = ln / np.maximum(g, 1e-12)
+    bad = ((ratio < lo) | (ratio > hi)) & (g > 1e-9)
+    return folded, bad
+
+
+def dilate(seed: np.ndarray, neighbours: sp.csr_matrix, rings: int) -> np.ndarray:
+    """(M,) bool: ``seed`` grown by ``rings`` rings of the adjacency (M, M)."""
+    out = np.asarray(seed, dtype=bool).copy()
+    for _ in range(rings):
+        out |= (neighbours @ out.astype(np.float64)) > 0
+    return out
+
+
+def gradient_operator(ref_pts: np.ndarray, faces: np.ndarray):
+    """Per-triangle gradient of piecewise-linear functions on the reference
+    item: (F, 3, 3) ``h[f, c]`` = gradient (1/m) of corner c's hat function,
+    so that the gradient of a vertex field ``x`` over triangle f is
+    ``sum_c h[f, c] (outer) x[faces[f, c]]``; plus unit normals (F, 3) and a
+    validity mask (F,) (non-degenerate triangles)."""
+    r = ref_pts[faces]
+    n = np.cross(r[:, 1] - r[:, 0], r[:, 2] - r[:, 0])
+    a2 = np.linalg.norm(n, axis=1)
+    ok = a2 > 1e-12
+    nh = n / np.where(ok, a2, 1.0)[:, None]
+    opp = np.stack([r[:, 2] - r[:, 1], r[:, 0] - r[:, 2], r[:, 1] - r[:, 0]], axis=1)  # edge opposite corner c
+    h = np.cross(nh[:, None, :], opp) / np.where(ok, a2, 1.0)[:, None, None]
+    return h, nh, ok
+
+
+class PatchSolver:
+    """Re-solve the ``free`` vertices (M,) bool of an item so that every
+    triangle touching them deforms like the body under it: the gradient of
+    the map reference item -> new item over each triangle (its tangential
+    part) is fitted to the mean body gradient ``grad`` (M, 3, 3) of its
+    corners, every triangle weighted alike (deformation transfer, Sumner &
+    Popovic 2004: a sliver triangle cannot flip cheaply, its gradient would
+    change sign). The other vertices stay where they are in ``pts`` (M, 3).
+
+    Each free vertex is tied to its position in ``pts`` with ``eps`` times
+    its diagonal (keeps parts that are free as a whole in place). Assembled
+    once; :meth:`solve` adds anchors (vertices pulled strongly towards given
+    positions) and runs three sparse solves (x, y, z) on one factorisation.
+    """
+
+    def __init__(self, ref_pts: np.ndarray, pts: np.ndarray, faces: np.ndarray, grad: np.ndarray,
+                 free: np.ndarray, eps: float = 1e-2):
+        self.idx = np.flatnonzero(free)
+        self.pts = np.array(pts, dtype=np.float64, copy=True)
+        m = len(pts)
+        self.pos = np.full(m, -1)
+        self.pos[self.idx] = np.arange(len(self.idx))
+        f = faces[free[faces].any(axis=1)]
+        h, nh, ok = gradient_operator(ref_pts, f)
+        f, h, nh = f[ok], h[ok], nh[ok]
+        jt = grad[f].mean(axis=1)                                      # (F, 3, 3)
+        target = jt - np.einsum("fa,fb,fbc->fac", nh, nh, jt)          # tangential part P J
+        nf = len(f)
+        rows = np.broadcast_to((3 * np.arange(nf))[:, None, None] + np.arange(3)[None, None, :], (nf, 3, 3))
+        cols = np.broadcast_to(f[:, :, None], (nf, 3, 3))
+        g = sp.csr_matrix((h.ravel(), (rows.ravel(), cols.ravel())), shape=(3 * nf, m))
+        fixed = np.flatnonzero(~free)
+        b = target.reshape(3 * nf, 3) - g[:, fixed] @ self.pts[fixed]
+        gf = g[:, self.idx]
+        gt = gf.T.tocsr()
+        self.a = (gt @ gf).tocsr()
+        self.diag = self.a.diagonal()
+        self.rhs = gt @ b + (eps * self.diag)[:, None] * self.pts[self.idx]
+        self.anchor = eps * self.diag
+
+    def solve(self, anchor_idx: np.ndarray | None = None, anchor_pts: np.ndarray | None = None,
+              weight: float = 10.0) -> np.ndarray:
+        """New points (M, 3); anchor_idx (C,) vertices (non-free ones are
+        ignored) pulled towards anchor_pts (C, 3) with ``weight`` x their
+        diagonal."""
+        from scipy.sparse.linalg import splu
+        out = self.pts.copy()
+        if len(self.idx) == 0:
+            return out
+        anchor, rhs = self.anchor.copy(), self.rhs.copy()
+        if anchor_idx is not None and len(anchor_idx):
+            k = self.pos[anchor_idx] >= 0
+            c = self.pos[anchor_idx[k]]
+            extra = weight * self.diag[c]
+            anchor[c] += extra
+            rhs[c] += extra[:, None] * anchor_pts[k]
+        a = (self.a + sp.diags(anchor)).tocsc()
+        out[self.idx] = splu(a).solve(np.ascontiguousarray(rhs))
+        return out
+
+
+def untangle(ref_pts: np.ndarray, pts: np.ndarray, faces: np.ndarray, edges: np.ndarray,
+             neighbours: sp.csr_matrix, grad: np.ndarray, constrain, iterations: int = 2,
+             rings: int = 2, inner: int = 2, eps: float = 1e-2, anchor_weight: float = 10.0):
+    """Relax the neighbourhoods of folded triangles and badly stretched edges
+    (:func:`bad_elements`) towards the body's local deformation
+    (:class:`PatchSolver`), keeping the item out of the body and its layers
+    in order.
+
+    ref_pts/pts (M, 3) item points on the reference / after redress, faces
+    (F, 3) and edges (E, 2) of all items (stacked indices), neighbours (M, M)
+    item adjacency, grad (M, 3, 3) vertex gradients (:func:`vertex_gradients`).
+    constrain(points (M, 3), mask (M,) bool, before (M, 3)) -> (points, moved (M,) bool):
+        the hard constraints (push-out of the body, layer order) applied to
+        the masked vertices; ``before`` are the points the solve started
+        from (which met the constraints). A relaxed vertex it moves is anchored at its
+        corrected position for the following solves, so the patch settles
+        around it instead of folding against it.
+    Each of ``iterations`` rounds re-detects bad elements, frees them plus
+    ``rings`` rings and solves up to ``inner`` times while the constraints
+    keep moving vertices; the result of the last ``constrain`` is kept.
+    Returns (points (M, 3), touched (M,) bool: every vertex re-solved,
+    stats dict: bad element counts before/after, number of solves).
+    """
+    pts = np.array(pts, dtype=np.float64, copy=True)
+    touched = np.zeros(len(pts), dtype=bool)
+    stats = {"solves": 0}
+    anchored = np.zeros(len(pts), dtype=bool)
+    anchor_pos = pts.copy()
+    for it in range(iterations):
+        folded, bad = bad_elements(ref_pts, pts, faces, edges, grad)
+        if it == 0:
+            stats["folded_before"], stats["bad_edges_before"] = int(folded.sum()), int(bad.sum())
+        seed = np.zeros(len(pts), dtype=bool)
+        seed[faces[folded].ravel()] = True
+        seed[edges[bad].ravel()] = True
+        if not seed.any():
+            break
+        free = dilate(seed, neighbours, rings)
+        touched |= free
+        solver = PatchSolver(ref_pts, pts, faces, grad, free, eps=eps)
+        for _ in range(inner):
+            av = np.flatnonzero(anchored)
+            new = solver.solve(av, anchor_pos[av], anchor_weight)
+            stats["solves"] += 1
+            fixed, moved = constrain(new, free, solver.pts)
+            if not moved.any():
+                break
+            anchored |= moved
+            anchor_pos[moved] = fixed[moved]
+        pts = fixed
+    folded, bad = bad_elements(ref_pts, pts, faces, edges, grad)
+    stats["folded_after"], stats["bad_edges_after"] = int(folded.sum()), int(bad.sum())
+    return pts, touched, stats
