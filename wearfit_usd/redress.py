@@ -83,6 +83,7 @@ def similarity_fit(src: np.ndarray, dst: np.ndarray, weights: np.ndarray | None 
 # --------------------------------------------------------------------------
 # penetration
 
+UNTANGLE_CLEARANCE_DRIFT = 0.001  # m: the untangle may worsen an item's median clearance error by at most this
 LAYER_RADIUS = 0.03   # m: items closer than this may lie over one another
 LAYER_MIN_GAP = 0.005  # m: separation kept between layers (or their reference gap if smaller): covers the sag of a coarse outer layer between its vertices
 
@@ -693,7 +694,27 @@ def untangle_items(plan_: DressPlan, body_points: np.ndarray, pts: np.ndarray, q
             moved |= moved2
         return p, moved
 
-    return U.untangle(plan_.ref_points, pts, faces, item_edges, plan_.neighbours, grad, constrain, **kw)
+    new, touched, stats = U.untangle(plan_.ref_points, pts, faces, item_edges, plan_.neighbours, grad,
+                                     constrain, **kw)
+    # the untangle must not trade the fit for shape: an item whose re-solved
+    # vertices drifted from their reference clearance (median) by more than
+    # UNTANGLE_CLEARANCE_DRIFT beyond what the redress gave keeps the
+    # redress (a thin closed tube such as a necklace, free as a whole, can
+    # otherwise slide around the neck)
+    idx = np.flatnonzero(touched)
+    if len(idx):
+        ref_c = plan_.ref_clearance[idx]
+        err_before = np.abs(query.closest(pts[idx], ring=False)["distance"] - ref_c)
+        err_after = np.abs(query.closest(new[idx], ring=False)["distance"] - ref_c)
+        kept = []
+        for item, a, b in zip(plan_.items, plan_.offsets[:-1], plan_.offsets[1:]):
+            sel = (idx >= a) & (idx < b)
+            if sel.any() and (np.median(err_after[sel]) > np.median(err_before[sel]) + UNTANGLE_CLEARANCE_DRIFT):
+                new[idx[sel]] = pts[idx[sel]]
+                touched[idx[sel]] = False
+                kept.append(item.name)
+        stats["reverted_items"] = kept
+    return new, touched, stats
 
 
 def dress(ref: Character, target: Character, k: int = 5, use_regions: bool = True,
