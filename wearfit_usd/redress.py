@@ -696,24 +696,23 @@ def untangle_items(plan_: DressPlan, body_points: np.ndarray, pts: np.ndarray, q
 
     new, touched, stats = U.untangle(plan_.ref_points, pts, faces, item_edges, plan_.neighbours, grad,
                                      constrain, **kw)
-    # the untangle must not trade the fit for shape: an item whose re-solved
-    # vertices drifted from their reference clearance (median) by more than
-    # UNTANGLE_CLEARANCE_DRIFT beyond what the redress gave keeps the
-    # redress (a thin closed tube such as a necklace, free as a whole, can
-    # otherwise slide around the neck)
-    idx = np.flatnonzero(touched)
-    if len(idx):
-        ref_c = plan_.ref_clearance[idx]
-        err_before = np.abs(query.closest(pts[idx], ring=False)["distance"] - ref_c)
-        err_after = np.abs(query.closest(new[idx], ring=False)["distance"] - ref_c)
-        kept = []
-        for item, a, b in zip(plan_.items, plan_.offsets[:-1], plan_.offsets[1:]):
-            sel = (idx >= a) & (idx < b)
-            if sel.any() and (np.median(err_after[sel]) > np.median(err_before[sel]) + UNTANGLE_CLEARANCE_DRIFT):
-                new[idx[sel]] = pts[idx[sel]]
-                touched[idx[sel]] = False
-                kept.append(item.name)
-        stats["reverted_items"] = kept
+    # the untangle must not trade the fit for shape: an item whose median
+    # clearance error (|clearance - reference clearance| over all its
+    # vertices, the dressing metric) grows by more than
+    # UNTANGLE_CLEARANCE_DRIFT keeps its redress (a thin closed tube such as
+    # a necklace, freed as a whole, can otherwise slide around the neck)
+    kept = []
+    for item, a, b in zip(plan_.items, plan_.offsets[:-1], plan_.offsets[1:]):
+        if not touched[a:b].any():
+            continue
+        ref_c = plan_.ref_clearance[a:b]
+        err_before = np.median(np.abs(query.closest(pts[a:b], ring=False)["distance"] - ref_c))
+        err_after = np.median(np.abs(query.closest(new[a:b], ring=False)["distance"] - ref_c))
+        if err_after > err_before + UNTANGLE_CLEARANCE_DRIFT:
+            new[a:b] = pts[a:b]
+            touched[a:b] = False
+            kept.append(item.name)
+    stats["reverted_items"] = kept
     return new, touched, stats
 
 
