@@ -108,17 +108,3 @@ def test_numpy_fallback_gives_the_same_numbers(tmp_path):
     moved, n = g.apply(body.points * 0.98, q)
     assert n == int(ref["n"]) and n > 0
     np.testing.assert_allclose(moved, ref["out"], atol=1e-12)
-
-
-def test_compiled_lu_solve_matches_superlu():
-    import scipy.sparse as sp
-    from scipy.sparse.linalg import splu
-    rng = np.random.default_rng(4)
-    n = 400
-    a = sp.random(n, n, density=0.01, random_state=5) + sp.eye(n) * 3.0  # non-symmetric
-    lu = splu(a.tocsc())
-    b = rng.normal(size=(n, 3))
-    x = kernels.LUSolve(lu)(b)
-    np.testing.assert_allclose(x, lu.solve(b), rtol=1e-10, atol=1e-12)
-    np.testing.assert_allclose(a @ x, b, atol=1e-9)
-    np.testing.assert_allclose(kernels.LUSolve(lu)(b[:, 0]), lu.solve(b[:, 0]), atol=1e-12)

@@ -133,7 +133,13 @@ def _group_masks(candidate_mask, n_items: int, n_tris: int):
             labels = np.unique(allowed)
             return [(np.flatnonzero(allowed == r), np.flatnonzero(tri_labels == r)) for r in labels]
         # (M, R) boolean: allowed regions per item vertex
-        combos, inv = np.unique(allowed.astype(bool), axis=0, return_inverse=True)
+        allowed = allowed.astype(bool)
+        if allowed.shape[1] <= 62:  # rows as bit masks: a 1-D unique, much faster than axis=0
+            _, first, inv = np.unique(allowed @ (np.int64(1) << np.arange(allowed.shape[1], dtype=np.int64)),
+                                      return_index=True, return_inverse=True)
+            combos = allowed[first]
+        else:
+            combos, inv = np.unique(allowed, axis=0, return_inverse=True)
         inv = inv.ravel()
         out = []
         for ci, row in enumerate(combos):

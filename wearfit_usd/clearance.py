@@ -278,11 +278,11 @@ class SurfaceQuery:
     def _closest_block(self, q, k, ci=None, ring=True, signed=True):
         if ci is None:
             k = min(k, len(self.faces))
-            _, ci = self._ctree.query(q, k=k)
+            _, ci = self._ctree.query(q, k=k, workers=_workers(len(q)))
             if k == 1:
                 ci = ci[:, None]
         if ring:
-            _, vi = self._vtree.query(q, k=1)
+            _, vi = self._vtree.query(q, k=1, workers=_workers(len(q)))
             cand = np.concatenate([ci, self._ring[vi]], axis=1)
         else:
             cand = ci
@@ -332,6 +332,12 @@ class SurfaceQuery:
     def signed_distance(self, query: np.ndarray) -> np.ndarray:
         """(M,) signed distances, positive outside."""
         return self.closest(query)["distance"]
+
+
+def _workers(n_queries: int) -> int:
+    """KD-tree threads: all cores for large batches (dressing, metrics), one
+    for small ones (per-frame work, where threads cost more than they save)."""
+    return -1 if n_queries >= 4096 else 1
 
 
 def _vertex_face_ring(faces: np.ndarray, n_vertices: int) -> np.ndarray:

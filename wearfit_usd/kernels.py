@@ -401,77 +401,6 @@ class RadiusGrid:
         return idx, np.sqrt(d2)
 
 
-# ----------------------------------------------------------------------------
-# solves with a SuperLU factorisation (several right-hand sides)
-
-def _lu_solve(perm_r, perm_c, l_ptr, l_idx, l_val, u_ptr, u_idx, u_val, b, work, out):
-    """x with A x = b for A = Pr^T L U Pc^T (scipy's SuperLU convention); L
-    and U in CSC (indptr, indices, data), b and out (n, k), work (n, k)."""
-    n, k = b.shape
-    for i in range(n):
-        for c in range(k):
-            work[perm_r[i], c] = b[i, c]
-    for j in range(n):  # L z = Pr b, column by column
-        diag = 1.0
-        for p in range(l_ptr[j], l_ptr[j + 1]):
-            if l_idx[p] == j:
-                diag = l_val[p]
-        for c in range(k):
-            work[j, c] /= diag
-        for p in range(l_ptr[j], l_ptr[j + 1]):
-            i = l_idx[p]
-            if i > j:
-                v = l_val[p]
-                for c in range(k):
-                    work[i, c] -= v * work[j, c]
-    for j in range(n - 1, -1, -1):  # U y = z
-        diag = 1.0
-        for p in range(u_ptr[j], u_ptr[j + 1]):
-            if u_idx[p] == j:
-                diag = u_val[p]
-        for c in range(k):
-            work[j, c] /= diag
-        for p in range(u_ptr[j], u_ptr[j + 1]):
-            i = u_idx[p]
-            if i < j:
-                v = u_val[p]
-                for c in range(k):
-                    work[i, c] -= v * work[j, c]
-    for i in range(n):
-        for c in range(k):
-            out[i, c] = work[perm_c[i], c]
-
-
-if HAVE_NUMBA:
-    _lu_solve = _jit(_lu_solve)
-
-
-class LUSolve:
-    """Repeated solves with one scipy ``splu`` factorisation: the two
-    triangular solves compiled (one pass over the factors for all columns of
-    the right-hand side) instead of SuperLU's, which is ~2x slower for the
-    few (3) columns of a per-frame solve. ``LUSolve(lu)(b (n, k)) -> (n, k)``."""
-
-    def __init__(self, lu):
-        self.lu = lu
-        if HAVE_NUMBA:
-            lo, up = lu.L.tocsc(), lu.U.tocsc()
-            self._args = (np.ascontiguousarray(lu.perm_r, dtype=np.int64),
-                          np.ascontiguousarray(lu.perm_c, dtype=np.int64),
-                          lo.indptr.astype(np.int64), lo.indices.astype(np.int64), lo.data.astype(np.float64),
-                          up.indptr.astype(np.int64), up.indices.astype(np.int64), up.data.astype(np.float64))
-
-    def __call__(self, b: np.ndarray) -> np.ndarray:
-        b = np.ascontiguousarray(b, dtype=np.float64)
-        if not HAVE_NUMBA:  # pragma: no cover
-            return self.lu.solve(b)
-        squeeze = b.ndim == 1
-        b2 = b[:, None] if squeeze else b
-        out = np.empty_like(b2)
-        _lu_solve(*self._args, b2, np.empty_like(b2), out)
-        return out[:, 0] if squeeze else out
-
-
 def warm_up() -> bool:
     """Compile (or load from numba's cache) every kernel on tiny inputs, so
     the first real call does not pay the compilation; install.sh runs this.
@@ -486,8 +415,6 @@ def warm_up() -> bool:
     import scipy.sparse as sp
     mat = sp.csr_matrix(np.ones((2, 6)))
     binding_eval(pts, np.array([0, 1, 2, 0, 2, 3], dtype=np.int64), 2, mat, np.zeros((6, 3)))
-    from scipy.sparse.linalg import splu
-    LUSolve(splu(sp.csc_matrix(np.eye(3) * 2.0)))(np.ones((3, 3)))
     return True
 
 

@@ -75,10 +75,14 @@ class RigidParts:
         t = md - s[:, None] * np.einsum("gi,gij->gj", self._src_mean, rot)
         return s, rot, t
 
-    def __call__(self, body_points: np.ndarray, points: np.ndarray) -> np.ndarray:
-        if self._mean is None:
-            return points
-        s, rot, t = self.transforms(np.asarray(body_points, dtype=np.float64))
+    def place(self, s: np.ndarray, rot: np.ndarray, t: np.ndarray, points: np.ndarray) -> np.ndarray:
+        """Write the groups moved by :meth:`transforms`' output into
+        ``points`` (M, 3), in place; returns it."""
         for i, (gv, ref) in enumerate(zip(self.groups, self.ref_points)):
             points[gv] = s[i] * (ref @ rot[i]) + t[i]
         return points
+
+    def __call__(self, body_points: np.ndarray, points: np.ndarray) -> np.ndarray:
+        if self._mean is None:
+            return points
+        return self.place(*self.transforms(np.asarray(body_points, dtype=np.float64)), points)
