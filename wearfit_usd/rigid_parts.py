@@ -12,6 +12,9 @@ import numpy as np
 import scipy.sparse as sp
 
 
+_ROW = np.dtype((np.void, 24))  # one (3,) float64 row
+
+
 class RigidParts:
     """groups: list of (item vertex indices (P,), body vertex indices (Q,),
     body vertex weights (Q,)); ref_body (N, 3) the body the items were bound
@@ -78,8 +81,13 @@ class RigidParts:
     def place(self, s: np.ndarray, rot: np.ndarray, t: np.ndarray, points: np.ndarray) -> np.ndarray:
         """Write the groups moved by :meth:`transforms`' output into
         ``points`` (M, 3), in place; returns it."""
+        rows = points.flags.c_contiguous and points.dtype == np.float64 and points.ndim == 2
         for i, (gv, ref) in enumerate(zip(self.groups, self.ref_points)):
-            points[gv] = s[i] * (ref @ rot[i]) + t[i]
+            moved = s[i] * (ref @ rot[i]) + t[i]
+            if rows:  # one record per row: ~2x faster than fancy-index assignment of (P, 3)
+                points.view(_ROW).ravel()[gv] = moved.view(_ROW).ravel()
+            else:
+                points[gv] = moved
         return points
 
     def __call__(self, body_points: np.ndarray, points: np.ndarray) -> np.ndarray:
