@@ -23,7 +23,12 @@ Y up, metres):
    are), so each level costs one numeric Cholesky factorisation re-using one
    symbolic analysis (CHOLMOD, or scipy ``splu`` as fallback), then cheap
    back-substitutions.
-4. A final projection onto the target surface that never flips a triangle.
+4. Pocket collapse (:mod:`wearfit_usd.fit_collapse`): vertices still far
+   from the target - pockets the target does not have, such as the mouth
+   bag, eye sockets and toe gaps closed by a voxel remesh - are pulled onto
+   it in line-searched steps that never turn a triangle over.
+5. A final projection onto the target surface that never flips a triangle
+   (the collapsed pockets excluded).
 
 Public API: :func:`fit_body` (arrays) and :func:`fit_character`
 (:class:`~wearfit_usd.model.Character` pair). Geometry helpers
@@ -40,6 +45,7 @@ import scipy.sparse as sp
 
 from .clearance import SurfaceQuery, face_normals, vertex_normals
 from .errors import GeometryError
+from .fit_collapse import collapse_pockets
 from .sparse_solve import SPDSolver
 
 # --------------------------------------------------------------------------
@@ -67,6 +73,10 @@ class FitOptions:
     near_any_normal: float = 0.0       # matches closer than this (x height) ignore normals
     repair_rounds: int = 3             # flip repair passes after the schedule
     repair_rings: int = 4              # vertex rings freed around a flipped triangle
+    collapse_iterations: int = 6       # pocket collapse steps after the repair (0: off)
+    collapse_distance: float = 0.2     # farther than this (x mean edge length) starts a pocket
+    collapse_step: float = 0.7         # fraction of the way to the closest point per step
+    collapse_rings: int = 2            # vertex rings around them solved with them
     final_projection: bool = True
     projection_min: float = 0.001      # final snap: vertices farther than this (x height)
     projection_distance: float = 0.03  # ... and nearer than this snap onto the target
@@ -178,18 +188,47 @@ def surface_distances(points: np.ndarray, mesh_points: np.ndarray, mesh_faces: n
     return index.query(points)["distance"]
 
 
-def chamfer(a_points, a_faces, b_points, b_faces, index_b: SurfaceIndex | None = None) -> dict:
+def surface_samples(points: np.ndarray, faces: np.ndarray, count: int = 30000,
+                    seed: int = 0) -> np.ndarray:
+    """(count, 3) points spread uniformly by area over the triangles
+    (points (N, 3), faces (T, 3)); deterministic for a given ``seed``."""
+    points = np.asarray(points, float)
+    faces = np.asarray(faces)
+    area = np.linalg.norm(triangle_normals(points, faces), axis=1)
+    rng = np.random.default_rng(seed)
+    t = rng.choice(len(faces), size=count, p=area / area.sum())
+    r1, r2 = rng.random(count), rng.random(count)
+    s = np.sqrt(r1)
+    w = np.stack([1.0 - s, s * (1.0 - r2), s * r2], axis=1)  # uniform barycentric
+    return np.einsum("mk,mkj->mj", w, points[faces[t]])
+
+
+def chamfer(a_points, a_faces, b_points, b_faces, index_b: SurfaceIndex | None = None,
+            samples: int = 30000) -> dict:
     """Point-to-surface distances both ways, in millimetres (inputs in metres).
 
-    ``fit_to_target``: vertices of a to the surface of b; ``target_to_fit``:
-    vertices of b to the surface of a.
+    ``fit_to_target_*``: vertices of a to the surface of b; ``target_to_fit_*``:
+    vertices of b to the surface of a. ``*_surface_*``: the same from
+    ``samples`` points spread uniformly by area over each surface (the
+    surface-to-surface figure: a vertex-dense detail such as the mouth weighs
+    by its area, not by its vertex count). 0 samples: vertices only.
     """
-    d_ab = surface_distances(a_points, b_points, b_faces, index_b) * 1e3
-    d_ba = surface_distances(b_points, a_points, a_faces) * 1e3
-    return {"fit_to_target_mean_mm": float(d_ab.mean()),
-            "fit_to_target_p99_mm": float(np.percentile(d_ab, 99)),
-            "target_to_fit_mean_mm": float(d_ba.mean()),
-            "target_to_fit_p99_mm": float(np.percentile(d_ba, 99))}
+    index_b = index_b or SurfaceIndex(b_points, b_faces)
+    index_a = SurfaceIndex(a_points, a_faces)
+    d_ab = index_b.query(a_points)["distance"] * 1e3
+    d_ba = index_a.query(b_points)["distance"] * 1e3
+    out = {"fit_to_target_mean_mm": float(d_ab.mean()),
+           "fit_to_target_p99_mm": float(np.percentile(d_ab, 99)),
+           "target_to_fit_mean_mm": float(d_ba.mean()),
+           "target_to_fit_p99_mm": float(np.percentile(d_ba, 99))}
+    if samples:
+        s_ab = index_b.query(surface_samples(a_points, a_faces, samples))["distance"] * 1e3
+        s_ba = index_a.query(surface_samples(b_points, b_faces, samples))["distance"] * 1e3
+        out.update(fit_to_target_surface_mean_mm=float(s_ab.mean()),
+                   fit_to_target_surface_p99_mm=float(np.percentile(s_ab, 99)),
+                   target_to_fit_surface_mean_mm=float(s_ba.mean()),
+                   target_to_fit_surface_p99_mm=float(np.percentile(s_ba, 99)))
+    return out
 
 
 def count_flipped(before: np.ndarray, after: np.ndarray, faces: np.ndarray) -> int:
@@ -345,7 +384,10 @@ def _correspondence_targets(x: np.ndarray, faces: np.ndarray, target: SurfaceInd
 
 def _register(src_points, src_faces, valid, target: SurfaceIndex, opts: FitOptions,
               height: float, diag: dict):
-    """Non-rigid registration of (src_points, src_faces) onto ``target``."""
+    """Non-rigid registration of (src_points, src_faces) onto ``target``.
+
+    Returns (fitted points (N, 3), pocket (N,) bool: the vertices the pocket
+    collapse solved for)."""
     t0 = time.perf_counter()
     centre = src_points.mean(axis=0)
     e = src_points[src_faces[valid][:, [0, 1, 2]]]
@@ -416,24 +458,43 @@ def _register(src_points, src_faces, valid, target: SurfaceIndex, opts: FitOptio
             rhs[:n] += wv[:, None] * np.where(free[:, None], x[:n], goal)
             x = solver.solve(rhs)
             iters += 1
+    # pockets the target does not have (mouth, eye sockets, toe gaps closed
+    # by a remesh): pulled in by line-searched steps that turn no triangle over
+    tp = time.perf_counter()
+
+    def closest(q):
+        r = tgt.query(q, fast=True)
+        return r["points"], r["distance"]
+
+    x, pocket, cinfo = collapse_pockets(x, n, faces_valid, n0, deform.L, closest,
+                                weight=w_c, min_distance=opts.collapse_distance,
+                                step=opts.collapse_step, iterations=opts.collapse_iterations,
+                                grow_rings=opts.collapse_rings, solver=opts.solver)
     diag.update(time_factor_s=t_factor, time_correspondence_s=t_corr, time_solve_s=t_solve,
                 iterations=iters, factorizations=solver.n_factorizations,
                 forward_valid_last=nf, backward_valid_last=nb, repaired_flips=repaired,
-                freed_vertices=int(free.sum()))
-    return x[:n] * h + centre
+                freed_vertices=int(free.sum()), collapse_region_vertices=cinfo["region"],
+                collapse_steps=cinfo["steps"], collapse_solves=cinfo["solves"],
+                collapse_held_vertices=cinfo["held"],
+                time_collapse_s=time.perf_counter() - tp)
+    return x[:n] * h + centre, pocket
 
 
 def _project(points, faces, target: SurfaceIndex, reference_normals: np.ndarray,
-             min_dist: float, max_dist: float, max_rounds: int = 50):
+             min_dist: float, max_dist: float, max_rounds: int = 50,
+             keep: np.ndarray | None = None):
     """Snap vertices lying between ``min_dist`` and ``max_dist`` from the target
-    onto their closest target point (pockets the target lacks: mouth, eye
-    sockets, crevices between merged toes), then undo the move of every
-    vertex of a triangle that would turn over relative to
-    ``reference_normals`` (T, 3), until no triangle does. Vertices already
-    within ``min_dist`` stay (they sit slightly outside on convex parts,
-    which keeps chords close to the target)."""
+    onto their closest target point, then undo the move of every vertex of
+    a triangle that would turn over relative to ``reference_normals``
+    (T, 3), until no triangle does. Vertices already within ``min_dist``
+    stay (they sit slightly outside on convex parts, which keeps chords
+    close to the target); ``keep`` (N,) bool vertices stay too (the pocket
+    collapse placed them: snapping some of a folded pocket's vertices and
+    not others stretches triangles across it)."""
     q = target.query(points)
     ok = (q["distance"] > min_dist) & (q["distance"] < max_dist)
+    if keep is not None:
+        ok &= ~keep
     out = points
     for _ in range(max_rounds):
         out = np.where(ok[:, None], q["points"], points)
@@ -546,14 +607,14 @@ def fit_body(ref_points, ref_faces, target_points, target_faces, *, ref_skeleton
         t0 = time.perf_counter()
         height = float(np.ptp(posed, axis=0).max())
         target = SurfaceIndex(target_points, target_faces)
-        fitted = _register(posed, ref_faces, ref_valid, target, opts, height, diag)
+        fitted, pocket = _register(posed, ref_faces, ref_valid, target, opts, height, diag)
         diag["time_register_s"] = time.perf_counter() - t0
         if opts.final_projection:
             t0 = time.perf_counter()
             fitted, n_proj = _project(fitted, ref_faces[ref_valid], target,
                                       triangle_normals(posed, ref_faces[ref_valid]),
                                       opts.projection_min * height,
-                                      opts.projection_distance * height)
+                                      opts.projection_distance * height, keep=pocket)
             diag["projected_vertices"] = n_proj
             diag["time_project_s"] = time.perf_counter() - t0
         diag["time_total_fit_s"] = time.perf_counter() - t_start
