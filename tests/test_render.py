@@ -192,11 +192,8 @@ def test_gif_and_mp4_written_and_readable(animated_stage, tmp_path):
 
 
 def _has_pyav():
-    try:
-        import av  # noqa: F401
-        return True
-    except ImportError:
-        return False
+    import importlib.util
+    return importlib.util.find_spec("av") is not None
 
 
 def _read_mp4_frames(path):
