@@ -44,6 +44,7 @@ class AnimateOptions:
     penetration_margin: float = 0.001  # metres
     dress_pose: str = "first"          # "first": dress in frame 0's pose; "bind": on the bind pose
     measure_every: int = 0             # exact penetration statistics every N frames (0 = off)
+    untangle: bool = False             # dressing's untangle pass on frame 0 (see redress.apply)
 
 
 @dataclass
@@ -112,7 +113,7 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
               "ref_clearance": ref_plan.ref_clearance}
     if opt.mode == "lbs" or opt.dress_pose == "bind":
         # dressed on the target's bind pose; frame 0 comes from the binding
-        items_base, dress_timings = dress_items(reference, target, k=opt.k, **labels)
+        items_base, dress_timings = dress_items(reference, target, k=opt.k, untangle=opt.untangle, **labels)
         base_body, base_skeleton = body.points, target.skeleton
     else:
         # dressed in frame 0's pose: the reference is posed through its own
@@ -130,7 +131,8 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
                             skeleton=_posed_skeleton(reference.skeleton, ref_world0), items=ref_items0)
         base_skeleton = _posed_skeleton(target.skeleton, world[0])
         posed_target = replace(target, body=target.body.copy_with_points(body0), skeleton=base_skeleton)
-        items_base, dress_timings = dress_items(posed_ref, posed_target, k=opt.k, **labels)
+        items_base, dress_timings = dress_items(posed_ref, posed_target, k=opt.k, untangle=opt.untangle,
+                                                 **labels)
         base_body = body0
     rep.timings["dress"] = time.perf_counter() - t0
     rep.timings["dress_detail"] = dress_timings

@@ -54,7 +54,8 @@ class PenetrationGuard:
         ``radius`` from every body vertex (cannot sink this frame); and that
         nearest vertex (M,) (0 where far)."""
         body = self.query.points
-        vi, _ = RadiusGrid(body, self.radius).nearest(item_points)
+        self._grid = RadiusGrid(body, self.radius)
+        vi, _ = self._grid.nearest(item_points)
         far = vi < 0
         vi[far] = 0
         # unit-face-normal sums: cheaper than area weights, good enough here
@@ -89,7 +90,11 @@ class PenetrationGuard:
         idx = np.flatnonzero(suspect)
         n_inside = 0
         if len(idx):
-            dist, n = self.exact(idx, item_points, vi[idx])
+            # the triangles around the vertex nearest to where the item vertex
+            # is now (before any push): a limb pressing in is found there
+            near, _ = self._grid.nearest(item_points[idx])
+            near = np.where(near < 0, vi[idx], near)
+            dist, n = self.exact(idx, item_points, near)
             n = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
             n_inside = int(np.sum(dist < -self.margin))
             need = np.where(dist < self.target[idx], self.target[idx] - dist, 0.0)

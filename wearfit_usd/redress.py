@@ -758,10 +758,10 @@ def dress(ref: Character, target: Character, k: int = 5, use_regions: bool = Tru
           rigid="auto", penetration: bool = True, body_points: np.ndarray | None = None,
           strict_far: bool = False, bind_labels: np.ndarray | None = None,
           skirt_items: list[str] | None = None, ref_clearance: np.ndarray | None = None,
-          push_inherited: bool = True) -> DressResult:
+          push_inherited: bool = True, untangle: bool = True) -> DressResult:
     """Put every item of ``ref`` on ``target``'s body (internal space).
     ``bind_labels``/``skirt_items``/``ref_clearance``: see :func:`plan`;
-    ``push_inherited``: see :func:`apply`."""
+    ``push_inherited``, ``untangle``: see :func:`apply`."""
     tb = time.perf_counter()
     if body_points is None:
         body_points = fitted_body_points(ref, target)
@@ -769,7 +769,7 @@ def dress(ref: Character, target: Character, k: int = 5, use_regions: bool = Tru
     p = plan(ref, k=k, use_regions=use_regions, rigid=rigid, strict_far=strict_far,
              bind_labels=bind_labels, skirt_items=skirt_items, ref_clearance=ref_clearance)
     pts, free, moved, tm = apply(p, body_points, ref.body.faces, penetration=penetration,
-                                 push_inherited=push_inherited)
+                                 push_inherited=push_inherited, untangle=untangle)
     timings = {"body_fit_s": t_fit, **p.timings, **tm}
     keep_weights = (target.skeleton is not None and ref.skeleton is not None
                     and target.skeleton.joint_names == ref.skeleton.joint_names)

@@ -30,6 +30,9 @@ def register(sub, common):
                    help="first: dress in the clip's first frame pose (reference posed through its own rig, "
                         "fitted onto the posed target; default); bind: dress on the bind pose and reach "
                         "frame 0 through the binding (contacts at frame 0 then stay temporary)")
+    p.add_argument("--untangle", action="store_true",
+                   help="run dressing's untangle pass on frame 0 too (off by default: on the CMU pirouette it "
+                        "raised the worst frame's new penetrations from 0.92 %% to 1.01 %%)")
     p.add_argument("--write-skinned-items", action="store_true",
                    help="with --mode lbs: also write the items as skinned meshes (for engines without point caches)")
     p.add_argument("--velocities", action="store_true", help="author point velocities (units per second)")
@@ -58,7 +61,8 @@ def run(args) -> int:
     motion = read_bvh(args.clip, scale=args.bvh_scale)
     opts = AnimateOptions(k=args.k, start=args.start, end=args.end, fps=fps, mode=args.mode,
                           mapping=mapping, clip_frames=args.clip_frames, velocities=args.velocities,
-                          write_skinned_items=args.write_skinned_items, dress_pose=args.dress_pose)
+                          write_skinned_items=args.write_skinned_items, dress_pose=args.dress_pose,
+                          untangle=args.untangle)
     rep = animate(reference, target, motion, args.output, opts)
     t = rep.timings
     info(f"wrote {args.output}: {rep.frames} frames at {rep.fps:g} fps, {len(reference.items)} items; "
