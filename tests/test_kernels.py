@@ -108,3 +108,15 @@ def test_numpy_fallback_gives_the_same_numbers(tmp_path):
     moved, n = g.apply(body.points * 0.98, q)
     assert n == int(ref["n"]) and n > 0
     np.testing.assert_allclose(moved, ref["out"], atol=1e-12)
+
+
+def test_assign_rows_equals_fancy_assignment():
+    rng = np.random.default_rng(6)
+    a = rng.normal(size=(50, 3))
+    idx = rng.choice(50, 20, replace=False)
+    vals = rng.normal(size=(20, 3))
+    ref = a.copy()
+    ref[idx] = vals
+    np.testing.assert_array_equal(kernels.assign_rows(a.copy(), idx, vals), ref)
+    f = np.asfortranarray(a)  # not C-contiguous: the plain assignment path
+    np.testing.assert_array_equal(kernels.assign_rows(f, idx, vals), ref)

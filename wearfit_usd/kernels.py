@@ -401,6 +401,26 @@ class RadiusGrid:
         return idx, np.sqrt(d2)
 
 
+# ----------------------------------------------------------------------------
+# row scatter
+
+def assign_rows(dst: np.ndarray, idx: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """``dst[idx] = values`` for (M, 3) arrays, in place; returns ``dst``.
+
+    A C-contiguous float64 ``dst`` is viewed as one 24-byte record per row, so
+    each row moves as one item: about 2x faster than numpy's fancy-index
+    assignment of (P, 3) rows (per-frame smoothing and rigid parts)."""
+    if dst.flags.c_contiguous and dst.dtype == np.float64 and dst.ndim == 2 and dst.shape[1] == 3:
+        v = np.ascontiguousarray(values, dtype=np.float64)
+        dst.view(_ROW3).ravel()[idx] = v.view(_ROW3).ravel()
+    else:
+        dst[idx] = values
+    return dst
+
+
+_ROW3 = np.dtype((np.void, 24))  # one (3,) float64 row
+
+
 def warm_up() -> bool:
     """Compile (or load from numba's cache) every kernel on tiny inputs, so
     the first real call does not pay the compilation; install.sh runs this.

@@ -28,6 +28,7 @@ from . import regions as R
 from .binding import Binding, bind, local_signed_distance
 from .clearance import SurfaceQuery, VertexNormals
 from .errors import GeometryError, InputError
+from .kernels import assign_rows
 from .model import Character, Mesh
 from .progress import debug, warn
 from .rigid_parts import RigidParts
@@ -258,14 +259,7 @@ class LooseSmoother:
         if len(b):
             rhs += self._lap_ub @ (np.take(points, b, axis=0) - self._ref_b)
         out = np.array(points, dtype=np.float64, order="C", copy=True)
-        new = np.ascontiguousarray(self._ref_u + self._solver.solve(rhs))
-        _rows(out)[u] = _rows(new)
-        return out
-
-
-def _rows(a: np.ndarray) -> np.ndarray:
-    """(M,) view of a C-contiguous (M, 3) float64 array as one record per row."""
-    return a.view(np.dtype((np.void, a.shape[1] * a.itemsize))).ravel()
+        return assign_rows(out, u, self._ref_u + self._solver.solve(rhs))
 
 
 def push_out(body_query: SurfaceQuery, item_points: np.ndarray, min_clearance: np.ndarray,
