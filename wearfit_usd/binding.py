@@ -28,7 +28,7 @@ import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
 from .clearance import closest_point_on_triangles
-from .kernels import binding_eval
+from .kernels import HAVE_NUMBA, binding_eval
 
 
 def triangle_frames(points: np.ndarray, faces: np.ndarray):
@@ -64,9 +64,7 @@ class Binding:
 
     def __post_init__(self):
         self.n_body = int(self.matrix.shape[1] - len(self.faces))
-        f = self.faces[self.used]
-        # one gather of the used triangles' corners, laid out [v1s; v2s; v3s]
-        self._corners = np.ascontiguousarray(f.T.ravel())
+        self._used_faces = np.ascontiguousarray(self.faces[self.used], dtype=np.int64)
         # the same matrix with the normal-vertex columns of the used
         # triangles packed right after the body columns: evaluate fills one
         # contiguous (N + U, 3) buffer instead of scattering into N + T rows
@@ -104,8 +102,12 @@ class Binding:
         (F, N, 3) -> (F, M, 3). One sparse product per call."""
         p = np.asarray(body_points, dtype=np.float64)
         if p.ndim == 2:
-            return binding_eval(np.ascontiguousarray(p), self._corners, len(self.used), self._compact,
-                                self._buf)
+            if HAVE_NUMBA:
+                return binding_eval(np.ascontiguousarray(p), self._used_faces, self._compact, self._buf)
+            nb = len(p)
+            self._buf[:nb] = p
+            self._buf[nb:] = self.normal_vertices(p, self.used)
+            return self._compact @ self._buf
         f = p.shape[0]
         st = np.empty((self._compact.shape[1], f, 3))
         st[:self.n_body] = p.transpose(1, 0, 2)

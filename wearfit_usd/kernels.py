@@ -35,36 +35,6 @@ def _jit(fn):
 # ----------------------------------------------------------------------------
 # binding evaluation
 
-def _normal_vertices_into(points, corners, n_used, buf, offset):
-    """buf[offset + u] = v1 + unit normal of used triangle u, for u < n_used.
-
-    points (N, 3); corners (3 * n_used,) int: first corners of all used
-    triangles, then second corners, then third (the layout of
-    ``Binding._corners``); buf (offset + n_used, 3) written in place."""
-    for u in range(n_used):
-        i0 = corners[u]
-        i1 = corners[n_used + u]
-        i2 = corners[2 * n_used + u]
-        ax = points[i0, 0]
-        ay = points[i0, 1]
-        az = points[i0, 2]
-        e1x = points[i1, 0] - ax
-        e1y = points[i1, 1] - ay
-        e1z = points[i1, 2] - az
-        e2x = points[i2, 0] - ax
-        e2y = points[i2, 1] - ay
-        e2z = points[i2, 2] - az
-        nx = e1y * e2z - e1z * e2y
-        ny = e1z * e2x - e1x * e2z
-        nz = e1x * e2y - e1y * e2x
-        ln = np.sqrt(nx * nx + ny * ny + nz * nz)
-        if ln < 1e-300:
-            ln = 1e-300
-        buf[offset + u, 0] = ax + nx / ln
-        buf[offset + u, 1] = ay + ny / ln
-        buf[offset + u, 2] = az + nz / ln
-
-
 def _csr_times_rows3(indptr, indices, data, x, out):
     """out (M, 3) = A @ x for A in CSR (M rows) and x (K, 3)."""
     for r in range(len(indptr) - 1):
@@ -82,45 +52,39 @@ def _csr_times_rows3(indptr, indices, data, x, out):
         out[r, 2] = sz
 
 
-def _binding_eval(points, corners, n_used, indptr, indices, data, buf, out):
-    """The whole binding evaluation: body points and normal vertices into
-    ``buf`` (N + U, 3), then out (M, 3) = W @ buf."""
+def _binding_eval(points, used_faces, indptr, indices, data, buf, out):
+    """The whole binding evaluation: body points (N, 3) and the normal
+    vertices v1 + unit normal of the used triangles (U, 3) into ``buf``
+    (N + U, 3), then out (M, 3) = W @ buf."""
     n = points.shape[0]
     for i in range(n):
         buf[i, 0] = points[i, 0]
         buf[i, 1] = points[i, 1]
         buf[i, 2] = points[i, 2]
-    _normal_vertices_into(points, corners, n_used, buf, n)
+    _face_normals(points, used_faces, True, buf[n:])
+    for u in range(used_faces.shape[0]):
+        i0 = used_faces[u, 0]
+        buf[n + u, 0] += points[i0, 0]
+        buf[n + u, 1] += points[i0, 1]
+        buf[n + u, 2] += points[i0, 2]
     _csr_times_rows3(indptr, indices, data, buf, out)
 
 
 if HAVE_NUMBA:
-    _normal_vertices_into = _jit(_normal_vertices_into)
     _csr_times_rows3 = _jit(_csr_times_rows3)
     _binding_eval_jit = _jit(_binding_eval)
 else:  # pragma: no cover
     _binding_eval_jit = None
 
 
-def binding_eval(points: np.ndarray, corners: np.ndarray, n_used: int, matrix, buf: np.ndarray,
-                 out: np.ndarray | None = None) -> np.ndarray:
+def binding_eval(points: np.ndarray, used_faces: np.ndarray, matrix, buf: np.ndarray) -> np.ndarray:
     """Evaluate a compact binding matrix ``matrix`` (M, N + U) CSR on body
-    ``points`` (N, 3): fills ``buf`` (N + U, 3) with the points and the
-    normal vertices of the U used triangles (``corners``, see
-    :func:`_normal_vertices_into`) and returns (M, 3) item points."""
-    if out is None:
-        out = np.empty((matrix.shape[0], 3))
-    if HAVE_NUMBA:
-        _binding_eval_jit(points, corners, n_used, matrix.indptr, matrix.indices, matrix.data, buf, out)
-        return out
-    nb = len(points)  # pragma: no cover - numpy path
-    buf[:nb] = points
-    t = np.take(points, corners, axis=0)
-    v1 = t[:n_used]
-    n = np.cross(t[n_used:2 * n_used] - v1, t[2 * n_used:] - v1)
-    ln = np.maximum(np.sqrt(np.einsum("ij,ij->i", n, n)), 1e-300)
-    buf[nb:] = v1 + n / ln[:, None]
-    out[:] = matrix @ buf
+    ``points`` (N, 3) (compiled; numba only, :class:`binding.Binding` keeps
+    the numpy path): fills ``buf`` (N + U, 3) with the points and the normal
+    vertices of the U used triangles ``used_faces`` (U, 3) and returns the
+    (M, 3) item points."""
+    out = np.empty((matrix.shape[0], 3))
+    _binding_eval_jit(points, used_faces, matrix.indptr, matrix.indices, matrix.data, buf, out)
     return out
 
 
@@ -434,7 +398,7 @@ def warm_up() -> bool:
     RadiusGrid(pts, 0.5).nearest(pts)
     import scipy.sparse as sp
     mat = sp.csr_matrix(np.ones((2, 6)))
-    binding_eval(pts, np.array([0, 1, 2, 0, 2, 3], dtype=np.int64), 2, mat, np.zeros((6, 3)))
+    binding_eval(pts, faces, mat, np.zeros((6, 3)))
     return True
 
 
