@@ -362,7 +362,7 @@ class DressPlan:
     body_labels: np.ndarray
     ref_body: np.ndarray | None = None
     rigid_groups: list = field(default_factory=list)
-    rigid_parts: RigidParts | None = None  # the groups' per-frame evaluator (built from rigid_groups)
+    rigid_parts: RigidParts | None = field(init=False, default=None)  # rigid_groups' per-frame evaluator
     rigid_items: list = field(default_factory=list)
     skirt_items: list = field(default_factory=list)
     neighbours: sp.csr_matrix | None = None
@@ -373,6 +373,10 @@ class DressPlan:
     item_faces: np.ndarray | None = None  # (F, 3) triangles of all items, stacked vertex indices
     item_edges: np.ndarray | None = None  # (E, 2) their unique edges
     timings: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        if self.rigid_groups:
+            self.rigid_parts = RigidParts(self.rigid_groups, self.ref_body, self.ref_points)
 
     def item_slices(self):
         return [slice(int(a), int(b)) for a, b in zip(self.offsets[:-1], self.offsets[1:])]
@@ -560,7 +564,6 @@ def plan(ref: Character, k: int = 5, use_regions: bool = True, rigid="auto",
     return DressPlan(items=items, binding=binding, offsets=offsets, ref_points=pts,
                      ref_clearance=ref_clear, labels=labels, tri_labels=tri_labels,
                      body_labels=body_labels, rigid_groups=rigid_groups,
-                     rigid_parts=RigidParts(rigid_groups, body.points, pts),
                      rigid_items=rigid_items, skirt_items=skirts, neighbours=neighbours,
                      looseness=loose, smoother=LooseSmoother(neighbours, loose),
                      bind_labels=region_labels,
@@ -606,8 +609,6 @@ def apply(plan_: DressPlan, body_points: np.ndarray, body_faces: np.ndarray,
     rigid_maps = []
     if plan_.rigid_groups:
         parts = plan_.rigid_parts
-        if parts is None:
-            parts = plan_.rigid_parts = RigidParts(plan_.rigid_groups, plan_.ref_body, plan_.ref_points)
         s, rot, t = parts.transforms(body_points)
         parts.place(s, rot, t, pts)
         rigid_maps = [(gv, s[i] * rot[i]) for i, gv in enumerate(parts.groups)]
