@@ -28,6 +28,12 @@ def _sphere(n_sub: int):
     return np.asarray(m.vertices, float), np.asarray(m.faces, np.int64)
 
 
+def _random_rotation(seed: int) -> np.ndarray:
+    """A random proper rotation (3, 3) (QR of a Gaussian matrix, det +1)."""
+    rot = np.linalg.qr(np.random.default_rng(seed).normal(size=(3, 3)))[0]
+    return rot * np.sign(np.linalg.det(rot))
+
+
 def test_closest_point_matches_brute_force():
     rng = np.random.default_rng(3)
     a, b, c, p = (rng.normal(size=(3000, 3)) for _ in range(4))
@@ -59,9 +65,7 @@ def test_synthetic_ellipsoid_onto_deformed_remeshed_surface():
     # sphere, scaled anisotropically and bulged - its surface is known exactly
     src_p, src_f = _sphere(3)
     tgt_p, tgt_f = _sphere(4)
-    rng = np.random.default_rng(0)
-    rot = np.linalg.qr(rng.normal(size=(3, 3)))[0]
-    rot *= np.sign(np.linalg.det(rot))
+    rot = _random_rotation(0)
     tgt_p = tgt_p @ rot  # another triangulation of the unit sphere
     scale = np.array([0.30, 0.40, 0.26])  # metres: body-part sized
     tgt = tgt_p * scale
@@ -128,9 +132,7 @@ def test_closed_pocket_collapses_without_flips():
     # no pocket - as a voxel remesh closes the mouth and the eye sockets
     src, sf = _bag_sphere(4)
     tgt, tf = _sphere(4)
-    rng = np.random.default_rng(0)
-    rot = np.linalg.qr(rng.normal(size=(3, 3)))[0]
-    rot *= np.sign(np.linalg.det(rot))
+    rot = _random_rotation(0)
     opts = {"same_topology_shortcut": False}
     r = fit_body(src * 0.1, sf, (tgt @ rot) * 0.1, tf, options=opts)
     d = r.diagnostics
