@@ -48,14 +48,16 @@ class PenetrationGuard:
         self.push = np.zeros(len(item_points0))   # current push amount (m)
         self.direction = np.zeros((len(item_points0), 3))
 
-    def estimate(self, item_points: np.ndarray):
+    def estimate(self, item_points: np.ndarray, grid: RadiusGrid | None = None):
         """Clearance estimate against the body at the last :meth:`update`:
         offset (M,) along the nearest body vertex's normal, +inf farther than
         ``radius`` from every body vertex (cannot sink this frame); and that
-        nearest vertex (M,) (0 where far)."""
+        nearest vertex (M,) (0 where far). ``grid``: a :class:`RadiusGrid`
+        over the current body points, if the caller has one."""
         body = self.query.points
-        self._grid = RadiusGrid(body, self.radius)
-        vi, _ = self._grid.nearest(item_points)
+        if grid is None:
+            grid = RadiusGrid(body, self.radius)
+        vi, _ = grid.nearest(item_points)
         far = vi < 0
         vi[far] = 0
         # unit-face-normal sums: cheaper than area weights, good enough here
@@ -83,7 +85,8 @@ class PenetrationGuard:
         self.update(body_points)
         push = self.push * self.decay
         pre = item_points + push[:, None] * self.direction
-        approx, vi = self.estimate(pre)
+        grid = RadiusGrid(self.query.points, self.radius)
+        approx, vi = self.estimate(pre, grid)
         # suspects: with the (decaying) push applied, the estimated clearance
         # dropped by 2 mm since frame 0 or is below the margin
         suspect = self.outside0 & ((approx < self.approx0 - 0.002) | (approx < self.margin))
@@ -92,7 +95,7 @@ class PenetrationGuard:
         if len(idx):
             # the triangles around the vertex nearest to where the item vertex
             # is now (before any push): a limb pressing in is found there
-            near, _ = self._grid.nearest(item_points[idx])
+            near, _ = grid.nearest(item_points[idx])
             near = np.where(near < 0, vi[idx], near)
             dist, n = self.exact(idx, item_points, near)
             n = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
