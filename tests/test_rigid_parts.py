@@ -1,6 +1,7 @@
 """Batched rigid parts: exact on a known similarity, equal to one Umeyama fit per group."""
 import numpy as np
 
+from wearfit_usd.redress import similarity_fit
 from wearfit_usd.rigid_parts import RigidParts
 from wearfit_usd.bvh import axis_rotation
 
@@ -36,14 +37,8 @@ def test_matches_a_weighted_umeyama_fit_per_group_under_noise():
     new_body = body * [1.2, 0.9, 1.0] + rng.normal(scale=0.05, size=body.shape)  # not a similarity
     s, rot, t = RigidParts(groups, body, items).transforms(new_body)
     for g, (_, bv, bw) in enumerate(groups):
-        w = bw / bw.sum()
-        src, dst = body[bv], new_body[bv]
-        ms, md = w @ src, w @ dst
-        u, sv, vt = np.linalg.svd(((src - ms) * w[:, None]).T @ (dst - md))
-        d = np.sign(np.linalg.det(u @ vt))
-        r = (u * [1, 1, d]) @ vt
-        sc = (sv * [1, 1, d]).sum() / (w @ np.sum((src - ms) ** 2, axis=1))
+        sc, r, tr = similarity_fit(body[bv], new_body[bv], bw)  # one Umeyama fit, the reference
         np.testing.assert_allclose(rot[g], r, atol=1e-10)
         np.testing.assert_allclose(s[g], sc, rtol=1e-10)
-        np.testing.assert_allclose(t[g], md - sc * ms @ r, atol=1e-10)
+        np.testing.assert_allclose(t[g], tr, atol=1e-10)
         assert np.linalg.det(rot[g]) > 0
