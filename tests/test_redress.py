@@ -277,3 +277,27 @@ def test_worst_targets_untangled(ref_male, usd_dir):
         assert flip <= (0.0 if item.name in pl.rigid_items else 0.05), (item.name, flip)
         assert stretch <= 2.0, (item.name, stretch)
         assert c["new_pen_pct"] <= 0.5 and c["clear_med_mm"] <= 2.0 and c["clear_p95_mm"] <= 10.0, (item.name, c)
+
+
+def test_lift_folds_moves_a_folded_patch_as_a_whole():
+    """A flat patch whose middle vertices got different pushes along +z
+    (one pushed past its neighbour in-plane too: its triangles fold) is
+    lifted without folds, every pushed vertex at least as far along the
+    push as before, and the untouched far rim left where it was."""
+    from wearfit_usd import untangle as U
+    grid, faces = _grid(n=9)
+    before = grid.copy()
+    after = grid.copy()
+    mid = np.flatnonzero(np.abs(grid[:, :2] - 0.04).max(axis=1) < 0.001)[0]
+    after[mid] += [0.015, 0.0, 0.004]       # thrown past its right neighbour and up
+    grad = np.tile(np.eye(3), (len(grid), 1, 1))
+    changed = np.zeros(len(grid), bool)
+    changed[mid] = True
+    n_exp = U.expected_normals(grid, faces, grad)
+    assert U._folded(n_exp, after, faces).sum() >= 2
+    out, lifted = U.lift_folds(grid, before, after, faces, grad, changed)
+    assert not U._folded(n_exp, out, faces).any()
+    u = (after[mid] - before[mid]) / np.linalg.norm(after[mid] - before[mid])
+    assert (out[mid] - before[mid]) @ u >= np.linalg.norm(after[mid] - before[mid]) - 1e-12
+    assert lifted[mid] and not lifted.all()
+    np.testing.assert_allclose(out[~lifted], after[~lifted])

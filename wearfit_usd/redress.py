@@ -695,6 +695,7 @@ def untangle_items(plan_: DressPlan, body_points: np.ndarray, pts: np.ndarray, q
         # (armpit, crotch) and fold the patch.
         sel = np.flatnonzero(mask)
         res = query.closest(p[sel], ring=False)
+        solved = p
         p = p.copy()
         moved = np.zeros(len(p), dtype=bool)
         inside = (res["distance"] < 0) & (tgt[sel] > 0)
@@ -725,6 +726,11 @@ def untangle_items(plan_: DressPlan, body_points: np.ndarray, pts: np.ndarray, q
                 footprints[k][sel] = res[k]
             p, moved2 = keep_layers(query, p, plan_.offsets, plan_.layers, mask=mask, footprints=footprints)
             moved |= moved2
+        if moved.any():
+            # per-vertex pushes fold triangles whose corners got different
+            # pushes (slivers, concave creases): move such patches as a whole
+            p, lifted = U.lift_folds(plan_.ref_points, solved, p, faces, grad, moved)
+            moved |= lifted
         return p, moved
 
     new, touched, stats = U.untangle(plan_.ref_points, pts, faces, item_edges, plan_.neighbours, grad,

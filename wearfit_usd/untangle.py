@@ -70,6 +70,105 @@ def edge_targets(ref_pts: np.ndarray, grad: np.ndarray, edges: np.ndarray) -> np
     return 0.5 * np.einsum("ei,eij->ej", d, grad[edges[:, 0]] + grad[edges[:, 1]])
 
 
+def expected_normals(ref_pts: np.ndarray, faces: np.ndarray, grad: np.ndarray) -> np.ndarray:
+    """(F, 3) normals (not unit) of the expected shapes of item triangles
+    (F, 3): reference corners (M, 3) mapped by the mean vertex gradient
+    (M, 3, 3) of the corners; zero for degenerate reference triangles."""
+    gf = grad[faces].mean(axis=1)
+    r0 = ref_pts[faces[:, 0]]
+    a = np.einsum("fi,fij->fj", ref_pts[faces[:, 1]] - r0, gf)
+    b = np.einsum("fi,fij->fj", ref_pts[faces[:, 2]] - r0, gf)
+    n_exp = np.cross(a, b)
+    ref_area = np.linalg.norm(np.cross(ref_pts[faces[:, 1]] - r0, ref_pts[faces[:, 2]] - r0), axis=1)
+    n_exp[ref_area <= 1e-12] = 0.0
+    return n_exp
+
+
+def _folded(n_exp: np.ndarray, pts: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    p0 = pts[faces[:, 0]]
+    n_new = np.cross(pts[faces[:, 1]] - p0, pts[faces[:, 2]] - p0)
+    return np.einsum("fi,fi->f", n_exp, n_new) < 0
+
+
+def lift_folds(ref_pts: np.ndarray, before: np.ndarray, after: np.ndarray, faces: np.ndarray,
+               grad: np.ndarray, changed: np.ndarray, rounds: int = 12, slope: float = 0.5):
+    """Undo the folds a per-vertex correction made, by moving folded patches
+    as a whole.
+
+    ``after`` (M, 3) is ``before`` (M, 3) with the ``changed`` (M,) vertices
+    moved one by one (pushed out of the body, lifted over an inner layer).
+    Neighbouring vertices get different pushes (their own depth, their own
+    closest skin point and normal): where that difference exceeds the
+    height of a triangle (a sliver hair card standing off the skin, a
+    crease of a tight suit pushed from deep inside onto a concave crotch)
+    the triangle folds. Every connected group of triangles that is folded
+    in ``after`` but not in ``before`` is instead lifted from ``before``
+    along one direction ``u`` (the mean of its vertices' corrections): each
+    vertex by the envelope ``max_j (c_j - slope |r_i - r_j|)`` of the
+    corrections ``c_j`` along ``u`` (so at least its own, and it falls off
+    by at most ``slope`` per metre); a group that still folds moves by one
+    translation (the largest ``c_j``), which cannot turn a triangle over.
+    Groups that fold their neighbours in turn absorb them, for up to
+    ``rounds`` rounds (a trouser hem lifted over a shoe collar on a posed
+    ankle needs about 10); a group whose lift still folds a triangle at its
+    rim keeps the per-vertex corrections.
+    Returns (points (M, 3), vertices moved by a lift (M,) bool).
+    """
+    from scipy.sparse.csgraph import connected_components
+    out = after.copy()
+    lifted = np.zeros(len(after), dtype=bool)
+    near = np.zeros(len(after), dtype=bool)  # corners of triangles touching changed vertices
+    near[faces[changed[faces].any(axis=1)].ravel()] = True
+    cand = faces[near[faces].any(axis=1)]   # every triangle a lift can turn
+    if len(cand) == 0:
+        return out, lifted
+    n_exp = expected_normals(ref_pts, cand, grad)
+    ok = ~_folded(n_exp, before, cand)
+    group = _folded(n_exp, after, cand) & ok
+    if not group.any():
+        return out, lifted
+    for r in range(rounds):
+        gf = cand[group]
+        verts, local = np.unique(gf, return_inverse=True)
+        local = local.reshape(-1, 3)
+        i = np.concatenate([local[:, 0], local[:, 1]])
+        j = np.concatenate([local[:, 1], local[:, 2]])
+        graph = sp.csr_matrix((np.ones(len(i)), (i, j)), shape=(len(verts), len(verts)))
+        nc, lab = connected_components(graph, directed=False)
+        d = after[verts] - before[verts]
+        u = np.zeros((nc, 3))
+        np.add.at(u, lab, d)
+        un = np.linalg.norm(u, axis=1)
+        u /= np.where(un > 0, un, 1.0)[:, None]
+        along = np.einsum("vi,vi->v", d, u[lab])
+        mag = np.zeros(len(verts))
+        for g in range(nc):  # lift envelope: at least each vertex's own push, less slope x distance
+            v = np.flatnonzero(lab == g)
+            dist = np.linalg.norm(before[verts[v]][:, None] - before[verts[v]][None], axis=2)
+            mag[v] = (along[v][None, :] - slope * dist).max(axis=1)
+        comp = np.full(len(after), -1)
+        comp[verts] = lab
+        out = after.copy()
+        out[verts] = before[verts] + mag[:, None] * u[lab]
+        still = comp[cand[_folded(n_exp, out, cand) & ok]]
+        steep = np.isin(lab, still[still >= 0])  # the slope still folds: one translation
+        top = np.zeros(nc)
+        np.maximum.at(top, lab, along)
+        mag[steep] = top[lab[steep]]
+        out[verts] = before[verts] + mag[:, None] * u[lab]
+        new = _folded(n_exp, out, cand) & ok & ~group
+        if not new.any() or r == rounds - 1:
+            break
+        group |= new  # the lift folded triangles at a group's rim: lift them with it
+    # a group whose lift still folds its rim keeps the per-vertex corrections
+    rim = comp[cand[new]]
+    bad = np.unique(rim[rim >= 0])
+    keep = ~np.isin(lab, bad)
+    out[verts[~keep]] = after[verts[~keep]]
+    lifted[verts[keep]] = True
+    return out, lifted
+
+
 def bad_elements(ref_pts: np.ndarray, pts: np.ndarray, faces: np.ndarray, edges: np.ndarray,
                  grad: np.ndarray, lo: float = STRETCH_LO, hi: float = STRETCH_HI):
     """Folded triangles and badly stretched edges.
@@ -81,15 +180,7 @@ def bad_elements(ref_pts: np.ndarray, pts: np.ndarray, faces: np.ndarray, edges:
     [lo, hi] x its expected length (:func:`edge_targets`).
     Returns (folded (F,) bool, bad edges (E,) bool).
     """
-    gf = grad[faces].mean(axis=1)
-    r0 = ref_pts[faces[:, 0]]
-    a = np.einsum("fi,fij->fj", ref_pts[faces[:, 1]] - r0, gf)
-    b = np.einsum("fi,fij->fj", ref_pts[faces[:, 2]] - r0, gf)
-    n_exp = np.cross(a, b)
-    p0 = pts[faces[:, 0]]
-    n_new = np.cross(pts[faces[:, 1]] - p0, pts[faces[:, 2]] - p0)
-    ref_area = np.linalg.norm(np.cross(ref_pts[faces[:, 1]] - r0, ref_pts[faces[:, 2]] - r0), axis=1)
-    folded = (np.einsum("fi,fi->f", n_exp, n_new) < 0) & (ref_area > 1e-12)
+    folded = _folded(expected_normals(ref_pts, faces, grad), pts, faces)
     g = np.linalg.norm(edge_targets(ref_pts, grad, edges), axis=1)
     ln = np.linalg.norm(pts[edges[:, 1]] - pts[edges[:, 0]], axis=1)
     ratio = ln / np.maximum(g, 1e-12)
