@@ -33,19 +33,24 @@ def test_compiled_closest_matches_numpy_brute_force():
     assert inside.any() and (~inside).any()
 
 
-@pytest.mark.parametrize("radius", [0.01, 0.03, 0.2])
-def test_radius_grid_is_exact_nearest_within_radius(radius):
+@pytest.mark.parametrize("radius,cell", [(0.01, None), (0.03, None), (0.2, None), (0.03, 0.03), (0.03, 0.007)])
+def test_radius_grid_is_exact_nearest_within_radius(radius, cell):
     rng = np.random.default_rng(1)
     body = rng.uniform(-0.5, 0.5, size=(3000, 3)) * [1.0, 3.0, 0.5]
     q = rng.uniform(-0.8, 0.8, size=(4000, 3)) * [1.0, 3.0, 0.5]
     q[:10] += 100.0                                   # far outside the grid
-    idx, d = kernels.RadiusGrid(body, radius).nearest(q)
+    grid = kernels.RadiusGrid(body, radius, cell=cell)
     dref, iref = cKDTree(body).query(q, k=1, distance_upper_bound=radius)
     far = np.isinf(dref)
     assert far[:10].all() and far.sum() < len(q)
-    np.testing.assert_array_equal(idx < 0, far)
-    np.testing.assert_allclose(d[~far], dref[~far], rtol=1e-12)
-    assert np.all(np.isinf(d[far]))
+    # hints (any point, right or wrong, or none) bound the search only
+    hints = [None, rng.integers(-1, len(body), size=len(q)), np.where(far, -1, iref)]
+    for hint in hints:
+        idx, d = grid.nearest(q, hint=hint)
+        np.testing.assert_array_equal(idx < 0, far)
+        np.testing.assert_allclose(d[~far], dref[~far], rtol=1e-12)
+        np.testing.assert_array_equal(idx[~far], iref[~far])
+        assert np.all(np.isinf(d[far]))
 
 
 def test_compiled_binding_evaluation_matches_sparse_product():
@@ -120,3 +125,30 @@ def test_assign_rows_equals_fancy_assignment():
     np.testing.assert_array_equal(kernels.assign_rows(a.copy(), idx, vals), ref)
     f = np.asfortranarray(a)  # not C-contiguous: the plain assignment path
     np.testing.assert_array_equal(kernels.assign_rows(f, idx, vals), ref)
+
+
+def test_compiled_guard_matches_numpy_guard_over_frames():
+    """The compiled guard frame (hinted nearest-vertex searches, one pass)
+    gives the numpy path's pushes frame after frame, suspects included."""
+    from wearfit_usd.penetration_guard import PenetrationGuard
+    body = make_body(resolution=0.03).body
+    rng = np.random.default_rng(7)
+    sel = rng.choice(len(body.points), 3000)
+    from wearfit_usd.clearance import vertex_normals
+    n = vertex_normals(body.points, body.faces)
+    items = body.points[sel] + n[sel] * rng.uniform(0.0005, 0.02, size=(3000, 1))
+    guards = [PenetrationGuard(body.faces, body.points, items, compiled=c) for c in (True, False)]
+    assert guards[0].compiled and not guards[1].compiled
+    centre = body.points.mean(axis=0)
+    total_inside = 0
+    for f in range(8):
+        # the body swells and shrinks around its centre, the items stay: vertices
+        # sink in, are pushed, then their pushes decay
+        s = 1.0 + 0.03 * np.sin(f)
+        moved = centre + (body.points - centre) * s + rng.normal(scale=0.001, size=body.points.shape)
+        (a, na), (b, nb) = (g.apply(moved, items) for g in guards)
+        assert na == nb
+        total_inside += na
+        np.testing.assert_allclose(a, b, atol=1e-12)
+        np.testing.assert_array_equal(guards[0].push > 0, guards[1].push > 0)
+    assert total_inside > 100

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import kernels
 from .clearance import SurfaceQuery, VertexNormals
 from .kernels import RadiusGrid
 
@@ -28,16 +29,33 @@ class PenetrationGuard:
     never pop; a decaying vertex is tested again only when its clearance
     estimate (push included) drops.
 
+    With numba (``compiled``, the default when it is installed) a frame is
+    one compiled pass over the item vertices that also starts each nearest
+    vertex search from last frame's answer; the numpy path gives the same
+    numbers.
+
     body_faces (T, 3); body_points0 (N, 3) and item_points0 (M, 3) at the
     dressed frame; margin and radius in metres.
     """
 
+    DROP = 0.002  # m: an estimated clearance this far under its frame-0 value makes a suspect
+
     def __init__(self, body_faces: np.ndarray, body_points0: np.ndarray, item_points0: np.ndarray,
-                 margin: float = 0.001, decay: float = 0.7, radius: float = 0.03):
+                 margin: float = 0.001, decay: float = 0.7, radius: float = 0.03,
+                 compiled: bool | None = None):
         self.faces = np.ascontiguousarray(body_faces, dtype=np.int64)
         self.radius = float(radius)
+        self.compiled = kernels.HAVE_NUMBA if compiled is None else bool(compiled and kernels.HAVE_NUMBA)
         self.query = SurfaceQuery(self.faces, body_points0)
         self._incidence = VertexNormals(self.faces, len(body_points0)).incidence
+        self._grid = None
+        if self.compiled:
+            n_edges = int(self.query._edge_id.max()) + 1
+            self._edge_id = np.ascontiguousarray(self.query._edge_id, dtype=np.int64)
+            self._ring = np.ascontiguousarray(self.query._ring, dtype=np.int64)
+            self._edge_n = np.empty((n_edges, 3))
+            self._vsum = np.empty((len(body_points0), 3))
+            self._normals_of = None  # the body points the normal sums belong to
         c0 = self.query.signed_distance(item_points0)
         _, self.cand0 = self.query._ctree.query(item_points0, k=4)
         self.approx0, _ = self.estimate(item_points0)
@@ -47,6 +65,7 @@ class PenetrationGuard:
         self.decay = decay
         self.push = np.zeros(len(item_points0))   # current push amount (m)
         self.direction = np.zeros((len(item_points0), 3))
+        self._hint = np.full(len(item_points0), -1, dtype=np.int64)  # last nearest body vertex
 
     def estimate(self, item_points: np.ndarray, grid: RadiusGrid | None = None):
         """Clearance estimate against the body at the last :meth:`update`:
@@ -56,7 +75,16 @@ class PenetrationGuard:
         over the current body points, if the caller has one."""
         body = self.query.points
         if grid is None:
-            grid = RadiusGrid(body, self.radius)
+            grid = self._frame_grid()
+        if self.compiled:
+            self._sum_normals()
+            q = np.ascontiguousarray(item_points, dtype=np.float64)
+            est = np.empty(len(q))
+            vi = np.empty(len(q), dtype=np.int64)
+            kernels._guard_estimate(q, np.full(len(q), -1, dtype=np.int64), body, self._vsum, grid._sorted,
+                                    grid._order, grid._starts, grid._lo, grid._h, grid._dims,
+                                    self.radius ** 2, est, vi)
+            return est, vi
         vi, _ = grid.nearest(item_points)
         far = vi < 0
         vi[far] = 0
@@ -71,6 +99,21 @@ class PenetrationGuard:
         """Move the body to this frame's points (N, 3)."""
         self.query.update(body_points)
 
+    def _frame_grid(self) -> RadiusGrid:
+        """The radius grid over the current body points (rebuilt in place)."""
+        if self._grid is None:
+            self._grid = RadiusGrid(self.query.points, self.radius)
+        elif self._grid.points is not self.query.points:
+            self._grid.update(self.query.points)
+        return self._grid
+
+    def _sum_normals(self) -> None:
+        """Edge pseudo-normals and per-vertex normal sums of the current body
+        (compiled path), once per :meth:`update`."""
+        if self._normals_of is not self.query.points:
+            kernels._body_normals(self.faces, self._edge_id, self.query.face_normal, self._edge_n, self._vsum)
+            self._normals_of = self.query.points
+
     def exact(self, idx: np.ndarray, item_points: np.ndarray, nearest_vertex: np.ndarray):
         """Exact signed distance (len(idx),) and closest-feature normal
         (len(idx), 3) of item_points[idx] among their frame-0 triangles and
@@ -83,13 +126,23 @@ class PenetrationGuard:
         """Return (corrected item points (M, 3), number of suspects that were
         inside by more than the margin before correction)."""
         self.update(body_points)
+        grid = self._frame_grid()
+        if self.compiled:
+            self._sum_normals()
+            q = np.ascontiguousarray(item_points, dtype=np.float64)
+            out = np.empty_like(q)
+            n_inside = kernels._guard_frame(
+                q, self.push, self.direction, self._hint, self.cand0, self.approx0, self.outside0,
+                self.target, self.decay, self.margin, self.DROP, self.query.points, self.faces,
+                self._edge_id, self._ring, self.query.face_normal, self._edge_n, self._vsum,
+                grid._sorted, grid._order, grid._starts, grid._lo, grid._h, grid._dims, self.radius ** 2, out)
+            return out, int(n_inside)
         push = self.push * self.decay
         pre = item_points + push[:, None] * self.direction
-        grid = RadiusGrid(self.query.points, self.radius)
         approx, vi = self.estimate(pre, grid)
         # suspects: with the (decaying) push applied, the estimated clearance
         # dropped by 2 mm since frame 0 or is below the margin
-        suspect = self.outside0 & ((approx < self.approx0 - 0.002) | (approx < self.margin))
+        suspect = self.outside0 & ((approx < self.approx0 - self.DROP) | (approx < self.margin))
         idx = np.flatnonzero(suspect)
         n_inside = 0
         if len(idx):
