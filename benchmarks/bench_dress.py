@@ -7,9 +7,12 @@ Writes front-view comparison pictures (items coloured by clearance):
 
 Per (reference, target, item): new penetrations (item vertices >1 mm inside the
 target body that were outside the reference body), clearance change (median /
-95th percentile of |signed distance change|), flipped item triangles (normal
-against the reference normal turned by the body's local rotation), item edges
-stretched beyond the body's own local stretch, timings (binding evaluation,
+95th percentile of |signed distance change|), flipped item triangles and item
+edges stretched beyond the body's own local stretch (``metrics.shape_change``:
+main figures against the binding's blended body deformation and the 2K bound
+triangles with the clearance's offset factor, degenerate reference triangles
+(< 1 degree) left out and counted in ``degenerate_excluded``; ``_strict``
+columns: one body triangle, nothing left out), timings (binding evaluation,
 penetration + layer passes, untangle pass); for the same-topology
 targets also the MakeHuman proxy fit (.mhclo on the recipe shape incl. helper
 vertices) and the mean distance between both results.
@@ -60,7 +63,7 @@ def _proxy_for(item, proxies):
 
 def run(full: bool, out_dir: Path) -> list[dict]:
     from wearfit_usd.clearance import SurfaceQuery
-    from wearfit_usd.metrics import clearance_change, flip_and_stretch
+    from wearfit_usd.metrics import clearance_change, shape_change
     from wearfit_usd.mhclo import fit as mh_fit, shape_points, to_internal
     from wearfit_usd.binding import bind
     from wearfit_usd.redress import apply, fitted_body_points, plan
@@ -108,21 +111,27 @@ def run(full: bool, out_dir: Path) -> list[dict]:
             for i, (item, sl) in enumerate(zip(pl.items, pl.item_slices())):
                 p = pts[sl]
                 dr, dt = ref_d[i], qt.signed_distance(p)
-                flip, stretch = flip_and_stretch(item.points, p, item.faces, pl.binding.triangles[sl, 0],
-                                                 ref.body.points, body, ref.body.faces)
+                sc = shape_change(item.points, p, item.faces, pl.binding.triangles[sl], pl.binding.weights[sl],
+                                  ref.body.points, body, ref.body.faces, dr)
                 row = {**base, "item": item.name, "verts": item.n_points,
                        "rigid": item.name in pl.rigid_items,
                        **{k: round(v, 3) for k, v in clearance_change(dr, dt).items()},
-                       "flipped_pct": round(flip, 3), "overstretch_pct": round(stretch, 3),
+                       "flipped_pct": round(sc["flipped_pct"], 3),
+                       "flipped_strict_pct": round(sc["flipped_strict_pct"], 3),
+                       "degenerate_excluded": sc["degenerate"], "flipped_degenerate": sc["flipped_degenerate"],
+                       "overstretch_pct": round(sc["overstretch_pct"], 3),
+                       "overstretch_strict_pct": round(sc["overstretch_strict_pct"], 3),
                        "pushed": int(moved[sl].sum())}
                 k1 = clearance_change(dr, qt.signed_distance(pts_k1[sl]))
-                k1_flip, k1_stretch = flip_and_stretch(item.points, pts_k1[sl], item.faces,
-                                                       wrap.triangles[sl, 0], ref.body.points, body,
-                                                       ref.body.faces)
+                k1s = shape_change(item.points, pts_k1[sl], item.faces, wrap.triangles[sl], wrap.weights[sl],
+                                   ref.body.points, body, ref.body.faces, dr)
                 row.update({"k1_new_pen_pct": round(k1["new_pen_pct"], 3),
                             "k1_clear_med_mm": round(k1["clear_med_mm"], 3),
                             "k1_clear_p95_mm": round(k1["clear_p95_mm"], 3),
-                            "k1_flipped_pct": round(k1_flip, 3), "k1_overstretch_pct": round(k1_stretch, 3)})
+                            "k1_flipped_pct": round(k1s["flipped_pct"], 3),
+                            "k1_flipped_strict_pct": round(k1s["flipped_strict_pct"], 3),
+                            "k1_overstretch_pct": round(k1s["overstretch_pct"], 3),
+                            "k1_overstretch_strict_pct": round(k1s["overstretch_strict_pct"], 3)})
                 px = _proxy_for(item, proxies)
                 if mh_base is not None and px is not None:
                     mp = to_internal(mh_fit(px, mh_base))
@@ -187,7 +196,9 @@ def _picture(ref, tgt, ours, mh, k1, dest: Path) -> None:
 def _table(rows):
     cols = ["reference", "target", "item", "verts", "rigid", "new_pen_pct", "mh_new_pen_pct",
             "clear_med_mm", "clear_p95_mm", "mh_clear_med_mm", "mh_clear_p95_mm", "flipped_pct",
-            "overstretch_pct", "k1_new_pen_pct", "k1_clear_med_mm", "k1_flipped_pct", "k1_overstretch_pct",
+            "flipped_strict_pct", "degenerate_excluded", "overstretch_pct", "overstretch_strict_pct",
+            "k1_new_pen_pct", "k1_clear_med_mm", "k1_flipped_pct", "k1_flipped_strict_pct", "k1_overstretch_pct",
+            "k1_overstretch_strict_pct",
             "dist_to_mh_mean_mm", "pushed", "bind_s", "evaluate_ms",
             "penetration_s", "untangle_s", "frames_per_s", "error"]
     used = [c for c in cols if any(c in r for r in rows)]

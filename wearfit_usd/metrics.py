@@ -27,7 +27,9 @@ def _unit_normals(p: np.ndarray, faces: np.ndarray) -> np.ndarray:
 
 def flip_and_stretch(ref_pts: np.ndarray, new_pts: np.ndarray, faces: np.ndarray, tri0: np.ndarray,
                      ref_body: np.ndarray, fit_body: np.ndarray, body_faces: np.ndarray):
-    """Flipped item triangles and over-stretched item edges, in percent.
+    """Flipped item triangles and over-stretched item edges, in percent: the
+    strict single-triangle definition (the secondary figures of
+    :func:`shape_change`).
 
     ref_pts/new_pts (M, 3) item before/after, faces (F, 3) item triangles,
     tri0 (M,) the body triangle each item vertex is bound to first,
@@ -56,6 +58,151 @@ def flip_and_stretch(ref_pts: np.ndarray, new_pts: np.ndarray, faces: np.ndarray
     return 100.0 * float(flipped[ok].mean()) if ok.any() else 0.0, 100.0 * float(out.mean())
 
 
+DEGENERATE_MIN_ANGLE = 1.0  # degrees: reference item triangles below this have no well-defined normal
+
+
+def min_angle_deg(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(F,) smallest interior angle (degrees) of each triangle (F, 3) of points (M, 3)."""
+    p = points[faces]
+    ang = []
+    for c in range(3):
+        u, v = p[:, (c + 1) % 3] - p[:, c], p[:, (c + 2) % 3] - p[:, c]
+        cs = np.einsum("fi,fi->f", u, v) / np.maximum(np.linalg.norm(u, axis=1) * np.linalg.norm(v, axis=1), 1e-300)
+        ang.append(np.degrees(np.arccos(np.clip(cs, -1.0, 1.0))))
+    return np.min(ang, axis=0)
+
+
+def _offset_factor(ref_body, fit_body, body_faces, tri, bary, clearance, e, edge_len):
+    """(E,) growth of item edges (E, 2) (reference lengths ``edge_len``)
+    over the growth of the skin under them that comes from the item's
+    clearance alone: an offset surface at distance c over skin of normal
+    curvature k along the edge is ``1 + c k`` times as long as the skin, so
+    the factor is ``(1 + c k_fit) / (1 + c k_ref)``. The curvature along the
+    edge is the discrete normal derivative between its endpoints' closest
+    skin points, ``(n_j - n_i) . (p_j - p_i) / |p_j - p_i|^2``, with the same
+    skin points (triangle ``tri`` (M,), barycentrics ``bary`` (M, 3)) on both
+    bodies; c (m) is the endpoints' mean reference ``clearance`` (M,), 0 if
+    inside. Factor 1 where the skin points are less than a third of the
+    edge apart (an edge standing off the skin, e.g. along a hair strand) or
+    where an offset exceeds half the curvature radius of a concave part
+    (``1 + c k <= 0.5``: the offset surface folds there)."""
+    from .clearance import VertexNormals
+    vn = VertexNormals(body_faces, len(ref_body))
+    f = body_faces[tri]
+    grow, apart = [], None
+    c = np.maximum(0.5 * (clearance[e[:, 0]] + clearance[e[:, 1]]), 0.0)
+    for body in (ref_body, fit_body):
+        p = np.einsum("mc,mci->mi", bary, body[f])
+        n = np.einsum("mc,mci->mi", bary, vn(body)[f])
+        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+        dp = p[e[:, 1]] - p[e[:, 0]]
+        l2 = np.einsum("ei,ei->e", dp, dp)
+        if apart is None:
+            apart = l2 > (edge_len / 3.0) ** 2
+        grow.append(1.0 + c * np.einsum("ei,ei->e", n[e[:, 1]] - n[e[:, 0]], dp) / np.maximum(l2, 1e-300))
+    a, b = grow
+    return np.where(apart & (a > 0.5) & (b > 0.5), b / np.maximum(a, 0.5), 1.0)
+
+
+def shape_change(ref_pts: np.ndarray, new_pts: np.ndarray, faces: np.ndarray, triangles: np.ndarray,
+                 weights: np.ndarray, ref_body: np.ndarray, fit_body: np.ndarray, body_faces: np.ndarray,
+                 ref_clearance: np.ndarray | None = None, tri0: np.ndarray | None = None) -> dict:
+    """Flipped item triangles and edges stretched beyond the body's local
+    stretch, for one item, against the deformation of the body under it.
+
+    ref_pts/new_pts (M, 3) item before/after, faces (F, 3) its triangles,
+    triangles/weights (M, K) its binding (bound body triangles, blend
+    weights), ref_body/fit_body (N, 3) the body (reference topology) on the
+    reference and the target, body_faces (T, 3); ref_clearance (M,) signed
+    clearance on the reference (m; default: queried); tri0 (M,) the single
+    body triangle of each vertex for the strict secondary figures (default
+    ``triangles[:, 0]``).
+
+    Flipped (``flipped_pct``): the reference normal of an item triangle,
+    carried by the expected local deformation, opposes its new normal. The
+    expected deformation is the body's deformation gradient (frames
+    ``[e1, e2, unit normal]``) blended with the binding weights over each
+    corner's K triangles and averaged over the 3 corners: the deformation
+    the binding itself applies, and the one the untangle pass fits.
+    Reference triangles whose smallest angle is below
+    ``DEGENERATE_MIN_ANGLE`` (1 degree) are left out and counted
+    (``degenerate``): their smallest altitude is below 1.75 % of their
+    longest edge (0.3 mm on a 20 mm hair-card sliver), so an out-of-plane
+    offset of that vertex by a fraction of a millimetre - well inside the
+    millimetre-level clearance the dressing keeps - turns the normal by
+    tens of degrees: its direction is not defined at that scale. The
+    percentage is over the non-degenerate triangles.
+
+    Over-stretched (``overstretch_pct``): an item edge's length ratio
+    (new / reference) leaves [0.8, 1.25] x the body's own local stretch,
+    the range of edge-length ratios of every body triangle either endpoint
+    is bound to (2K triangles, 3 edges each), widened by the offset factor
+    of the item's clearance: an offset surface at clearance c over skin of
+    normal curvature k along the edge is ``1 + c k`` times as long as the
+    skin, so where the target's skin bends more or less the item legitimately
+    changes by ``(1 + c k_fit) / (1 + c k_ref)`` on top of the skin's
+    stretch (``(R' + c) / (R + c)`` for a cylinder of radius R -> R'); the
+    range spans both the skin's ratios and those ratios times the factor.
+
+    Strict secondary figures (the earlier definition): ``flipped_strict_pct``
+    turns the normal by the rotation of one body triangle (``tri0`` of the
+    first corner), no triangle excluded; ``overstretch_strict_pct`` uses the
+    edge ratios of that one triangle of the edge's first vertex and no
+    offset factor.
+
+    Returns a dict: flipped_pct, degenerate (count), flipped_degenerate
+    (how many of those would count as flipped), flipped_strict_pct,
+    overstretch_pct, overstretch_strict_pct, and the indices ``flipped``
+    (triangles) and ``overstretched`` (rows of :func:`redress.edges`).
+    """
+    from . import untangle as U
+    from .redress import edges
+    ref_pts = np.asarray(ref_pts, dtype=np.float64)
+    new_pts = np.asarray(new_pts, dtype=np.float64)
+    tri0 = triangles[:, 0] if tri0 is None else tri0
+    strict_flip, strict_stretch = flip_and_stretch(ref_pts, new_pts, faces, tri0, ref_body, fit_body, body_faces)
+    used = np.unique(triangles)
+    tg = np.tile(np.eye(3), (len(body_faces), 1, 1))
+    tg[used] = U.triangle_gradients(ref_body, fit_body, body_faces[used])
+    grad = U.vertex_gradients(tg, triangles, weights)
+    n_exp = U.expected_normals(ref_pts, faces, grad)
+    p0 = new_pts[faces[:, 0]]
+    n_new = np.cross(new_pts[faces[:, 1]] - p0, new_pts[faces[:, 2]] - p0)
+    area_ok = np.linalg.norm(n_exp, axis=1) > 0
+    flipped = (np.einsum("fi,fi->f", n_exp, n_new) < 0) & area_ok
+    degenerate = min_angle_deg(ref_pts, faces) < DEGENERATE_MIN_ANGLE
+    counted = area_ok & ~degenerate
+    # body stretch range over the 2K triangles bound to the edge's endpoints
+    bf = body_faces
+    lr = np.stack([np.linalg.norm(ref_body[bf[:, i]] - ref_body[bf[:, (i + 1) % 3]], axis=1) for i in range(3)], 1)
+    lf = np.stack([np.linalg.norm(fit_body[bf[:, i]] - fit_body[bf[:, (i + 1) % 3]], axis=1) for i in range(3)], 1)
+    br = lf / np.maximum(lr, 1e-12)
+    tmin, tmax = br.min(axis=1), br.max(axis=1)
+    e = edges(faces)
+    t2 = np.concatenate([triangles[e[:, 0]], triangles[e[:, 1]]], axis=1)  # (E, 2K)
+    smin, smax = tmin[t2].min(axis=1), tmax[t2].max(axis=1)
+    qr = SurfaceQuery(body_faces, ref_body)
+    res = qr.closest(ref_pts)
+    if ref_clearance is None:
+        ref_clearance = res["distance"]
+    le_r = np.linalg.norm(ref_pts[e[:, 1]] - ref_pts[e[:, 0]], axis=1)
+    lt = np.linalg.norm(new_pts[e[:, 1]] - new_pts[e[:, 0]], axis=1)
+    ratio = lt / np.maximum(le_r, 1e-12)
+    fac = _offset_factor(ref_body, fit_body, body_faces, res["triangle"], res["bary"],
+                         np.asarray(ref_clearance, dtype=np.float64), e, le_r)
+    lo = np.minimum(smin, smin * fac)
+    hi = np.maximum(smax, smax * fac)
+    over = (ratio < 0.8 * lo) | (ratio > 1.25 * hi)
+    n_counted = int(counted.sum())
+    return {"flipped_pct": 100.0 * float((flipped & counted).sum()) / n_counted if n_counted else 0.0,
+            "degenerate": int((degenerate & area_ok).sum()),
+            "flipped_degenerate": int((flipped & degenerate).sum()),
+            "flipped_strict_pct": strict_flip,
+            "overstretch_pct": 100.0 * float(over.mean()) if len(e) else 0.0,
+            "overstretch_strict_pct": strict_stretch,
+            "flipped": np.flatnonzero(flipped & counted), "overstretched": np.flatnonzero(over)}
+
+
 def clearance_change(ref_clearance: np.ndarray, new_clearance: np.ndarray, inside: float = 0.001) -> dict:
     """New penetrations (outside the reference body, > ``inside`` m inside the
     target) and the change of clearance, for one item."""
@@ -68,7 +215,8 @@ def clearance_change(ref_clearance: np.ndarray, new_clearance: np.ndarray, insid
 def dress_report(reference, target, result) -> list[dict]:
     """Per-item quality of a :class:`redress.DressResult` (reference and target
     are :class:`Character`): new penetration %, clearance change median/p95 mm,
-    flipped triangles %, over-stretched edges %."""
+    flipped triangles % and over-stretched edges % (:func:`shape_change`: main
+    and strict figures, degenerate reference triangles left out and counted)."""
     qr = SurfaceQuery(reference.body.faces, reference.body.points)
     qt = SurfaceQuery(target.body.faces, target.body.points)
     pl = result.plan
@@ -76,9 +224,9 @@ def dress_report(reference, target, result) -> list[dict]:
     for item, new, sl in zip(pl.items, result.items, pl.item_slices()):
         dr = qr.signed_distance(item.points)
         dt = qt.signed_distance(new.points)
-        flip, stretch = flip_and_stretch(item.points, new.points, item.faces, pl.binding.triangles[sl, 0],
-                                         reference.body.points, result.body_points, reference.body.faces)
+        sc = shape_change(item.points, new.points, item.faces, pl.binding.triangles[sl], pl.binding.weights[sl],
+                          reference.body.points, result.body_points, reference.body.faces, dr)
         rows.append({"item": item.name, "verts": item.n_points, **clearance_change(dr, dt),
-                     "flipped_pct": flip, "overstretch_pct": stretch,
+                     **{k: v for k, v in sc.items() if k not in ("flipped", "overstretched")},
                      "rigid": item.name in pl.rigid_items})
     return rows
