@@ -106,14 +106,13 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
     body_skinner = Skinner(body.points, body.joint_indices, body.joint_weights, target.skeleton.n_joints)
     body0 = body_skinner(skin_mats[0])
     from .redress import apply as apply_plan, plan as plan_dress
-    # regions as found on the reference in its rest pose (limbs apart): a
-    # posed body (hands hanging beside a skirt) would hand skirt parts to the arms
+    # one plan, on the reference in its rest pose: regions and bound triangles
+    # are best found with the limbs apart (a posed body, hands hanging beside
+    # a skirt, would hand skirt parts to the arms); the posed dressing rebinds it
     ref_plan = plan_dress(reference, k=opt.k)
-    labels = {"bind_labels": ref_plan.bind_labels, "skirt_items": ref_plan.skirt_items,
-              "ref_clearance": ref_plan.ref_clearance}
     if opt.mode == "lbs" or opt.dress_pose == "bind":
         # dressed on the target's bind pose; frame 0 comes from the binding
-        items_base, dress_timings = dress_items(reference, target, k=opt.k, untangle=opt.untangle, **labels)
+        dressed = dress_items(reference, target, k=opt.k, untangle=opt.untangle, prepared=ref_plan)
         base_body, base_skeleton = body.points, target.skeleton
     else:
         # dressed in frame 0's pose: the reference is posed through its own
@@ -125,15 +124,15 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
                                 reference.body.joint_weights,
                                 skinning_matrices(reference.skeleton.bind_world, ref_world0))
         posed_pts, _, _, _ = apply_plan(ref_plan, ref_body0, reference.body.faces, penetration=False)
-        ref_items0 = [m.copy_with_points(posed_pts[sl])
-                      for m, sl in zip(ref_plan.items, ref_plan.item_slices())]
+        # the posed items bound where they are, with the rest pose's triangles
+        posed_plan = ref_plan.rebound(ref_body0, posed_pts)
         posed_ref = replace(reference, body=reference.body.copy_with_points(ref_body0),
-                            skeleton=_posed_skeleton(reference.skeleton, ref_world0), items=ref_items0)
+                            skeleton=_posed_skeleton(reference.skeleton, ref_world0), items=posed_plan.items)
         base_skeleton = _posed_skeleton(target.skeleton, world[0])
         posed_target = replace(target, body=target.body.copy_with_points(body0), skeleton=base_skeleton)
-        items_base, dress_timings = dress_items(posed_ref, posed_target, k=opt.k, untangle=opt.untangle,
-                                                 **labels)
+        dressed = dress_items(posed_ref, posed_target, k=opt.k, untangle=opt.untangle, prepared=posed_plan)
         base_body = body0
+    items_base, dress_timings = dressed.items, dressed.timings
     rep.timings["dress"] = time.perf_counter() - t0
     rep.timings["dress_detail"] = dress_timings
 
@@ -155,9 +154,14 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
         # the dressed items bound to the target with the same region-aware
         # plan as dressing (skirts from the hips, rigid parts, loose parts
         # smoothed): a linear evaluation per frame
-        base = replace(target, body=body.copy_with_points(base_body), skeleton=base_skeleton, items=items)
-        frame_plan = plan_dress(base, k=opt.k, bind_labels=ref_plan.bind_labels,
-                                skirt_items=ref_plan.skirt_items)
+        if np.array_equal(body.faces, reference.body.faces):
+            # same body topology (the fitting's fast path): the dressing's plan,
+            # rebound to the dressed items on the target's frame 0
+            frame_plan = dressed.plan.rebound(base_body, all_base)
+        else:
+            base = replace(target, body=body.copy_with_points(base_body), skeleton=base_skeleton, items=items)
+            frame_plan = plan_dress(base, k=opt.k, bind_labels=ref_plan.bind_labels,
+                                    skirt_items=ref_plan.skirt_items)
         evaluator = lambda f, body_f: apply_plan(frame_plan, body_f, body.faces,  # noqa: E731
                                                  penetration=False)[0]
         items_for_skin = []
@@ -218,8 +222,7 @@ class _LBSEvaluator:
 
 def dress_items(reference: Character, target: Character, k: int = 5, **plan_kw):
     """Fit the reference body onto the target body and redress the items
-    (:func:`redress.dress`). Returns (items on the target in internal space,
-    timings dict)."""
+    (:func:`redress.dress`). Returns its :class:`redress.DressResult` (items
+    on the target in internal space, plan, timings)."""
     from .redress import dress
-    res = dress(reference, target, k=k, **plan_kw)
-    return res.items, res.timings
+    return dress(reference, target, k=k, **plan_kw)

@@ -168,7 +168,7 @@ def bind(body_points: np.ndarray, body_faces: np.ndarray, item_points: np.ndarra
     body = np.asarray(body_points, dtype=np.float64)
     faces = np.asarray(body_faces, dtype=np.int64)
     q = np.asarray(item_points, dtype=np.float64)
-    n_body, n_tri, m = len(body), len(faces), len(q)
+    n_tri, m = len(faces), len(q)
     if m == 0:
         raise ValueError("bind: no item points")
     k = int(k)
@@ -217,7 +217,16 @@ def bind(body_points: np.ndarray, body_faces: np.ndarray, item_points: np.ndarra
         s = w.sum(axis=1, keepdims=True)
     w = w / s
 
-    # local coordinates in each bound triangle
+    return _assemble(body, faces, q, tri_idx, w, e1, e2, nrm)
+
+
+def _assemble(body: np.ndarray, faces: np.ndarray, q: np.ndarray, tri_idx: np.ndarray, w: np.ndarray,
+              e1: np.ndarray, e2: np.ndarray, nrm: np.ndarray) -> Binding:
+    """The :class:`Binding` of item points q (M, 3) to the triangles tri_idx
+    (M, k) with blend weights w (M, k): local coordinates in each triangle
+    (edges e1, e2 and unit normals nrm (T, 3) of the body) and the sparse
+    matrix."""
+    n_body, n_tri, m, k = len(body), len(faces), len(q), tri_idx.shape[1]
     f = faces[tri_idx]  # (M, k, 3)
     v1 = body[f[..., 0]]
     d = q[:, None, :] - v1
@@ -245,6 +254,23 @@ def bind(body_points: np.ndarray, body_faces: np.ndarray, item_points: np.ndarra
     mat.sort_indices()
     used = np.unique(tri_idx[w > 0])
     return Binding(matrix=mat, faces=faces, triangles=tri_idx, weights=w, local=local, used=used)
+
+
+def rebind(binding: Binding, body_points: np.ndarray, item_points: np.ndarray) -> Binding:
+    """``binding``'s triangles and blend weights, with item points (M, 3)
+    stored where they are now on body points (N, 3) of the same topology.
+
+    Choosing the triangles is most of :func:`bind`'s cost; an animation binds
+    the dressed items to the posed target with the triangles the reference
+    chose in its rest pose (limbs apart), which also keeps a vertex from
+    switching to a limb that the pose brings close."""
+    body = np.asarray(body_points, dtype=np.float64)
+    q = np.asarray(item_points, dtype=np.float64)
+    if body.shape[0] != binding.n_body or q.shape[0] != binding.n_items:
+        raise ValueError(f"rebind: {len(body)} body / {len(q)} item points for a binding of "
+                         f"{binding.n_body} / {binding.n_items}")
+    e1, e2, nrm, _ = triangle_frames(body, binding.faces)
+    return _assemble(body, binding.faces, q, binding.triangles, binding.weights, e1, e2, nrm)
 
 
 def local_signed_distance(binding: Binding, body_points: np.ndarray, item_points: np.ndarray):
