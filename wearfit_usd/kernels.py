@@ -536,6 +536,78 @@ def _guard_estimate(q, hint, points, vsum, spts, order, starts, lo, h, dims, r2,
             out_vi[i] = bi
 
 
+def _exact_signed(ix, iy, iz, i, near, cand0, ring, points, faces, edge_id, face_n, edge_n):
+    """Signed distance of (ix, iy, iz) to the closest of the triangles
+    cand0[i] and ring[near] (first wins ties), sign and normal (not unit)
+    from the closest feature's pseudo-normal, as clearance.SurfaceQuery."""
+    nc = cand0.shape[1]
+    bd = np.inf
+    bs = 0.0
+    bt = 0.0
+    bin_ = False
+    btri = cand0[i, 0]
+    for k in range(nc + ring.shape[1]):
+        f = cand0[i, k] if k < nc else ring[near, k - nc]
+        dist, s, t, inside = _closest_on_triangle(ix, iy, iz, f, points, faces)
+        if dist < bd:
+            bd = dist
+            bs = s
+            bt = t
+            bin_ = inside
+            btri = f
+    a = faces[btri, 0]
+    b = faces[btri, 1]
+    c = faces[btri, 2]
+    cx = points[a, 0] + bs * (points[b, 0] - points[a, 0]) + bt * (points[c, 0] - points[a, 0])
+    cy = points[a, 1] + bs * (points[b, 1] - points[a, 1]) + bt * (points[c, 1] - points[a, 1])
+    cz = points[a, 2] + bs * (points[b, 2] - points[a, 2]) + bt * (points[c, 2] - points[a, 2])
+    if bin_:
+        nx = face_n[btri, 0]
+        ny = face_n[btri, 1]
+        nz = face_n[btri, 2]
+    else:
+        e = -1
+        v = -1
+        if bt == 0.0:
+            if bs == 0.0:
+                v = a
+            elif bs == 1.0:
+                v = b
+            else:
+                e = edge_id[btri, 0]
+        elif bs == 0.0:
+            if bt == 1.0:
+                v = c
+            else:
+                e = edge_id[btri, 2]
+        else:
+            e = edge_id[btri, 1]
+        if e >= 0:
+            nx = edge_n[e, 0]
+            ny = edge_n[e, 1]
+            nz = edge_n[e, 2]
+        else:
+            nx, ny, nz = _vertex_pseudo_normal(v, points, faces, ring, face_n)
+    sd = np.sqrt(bd)
+    if (ix - cx) * nx + (iy - cy) * ny + (iz - cz) * nz < 0:
+        sd = -sd
+    return sd, nx, ny, nz
+
+
+def _nearest_from(qx, qy, qz, g, r2, spts, order, starts, lo, h, dims, points):
+    """Nearest body vertex within sqrt(r2) of (qx, qy, qz), the search bound
+    by vertex g first (-1: none); -1 if none."""
+    best = r2
+    bi = -1
+    if g >= 0:
+        dd = (points[g, 0] - qx) ** 2 + (points[g, 1] - qy) ** 2 + (points[g, 2] - qz) ** 2
+        if dd < best:
+            best = dd
+            bi = g
+    bi, best = _grid_scan(qx, qy, qz, best, bi, spts, order, starts, lo, h, dims)
+    return bi
+
+
 def _guard_frame(item, push, direction, hint, cand0, approx0, outside0, target, decay, margin, drop,
                  points, faces, edge_id, ring, face_n, edge_n, vsum,
                  spts, order, starts, lo, h, dims, r2, out):
@@ -544,11 +616,12 @@ def _guard_frame(item, push, direction, hint, cand0, approx0, outside0, target, 
     suspects by the nearest-vertex estimate (hint (M,): last frame's nearest
     vertex, updated), gives them the exact signed distance among their
     frame-0 triangles cand0 (M, c) and the ring of the body vertex nearest
-    to them, and pushes them out to target (M,). Writes out (M, 3); returns
-    the number of suspects inside by more than ``margin``."""
+    to them, pushes them out to target (M,), and checks the pushed point the
+    same way: one still within ``margin`` of the surface (pushed into another
+    body part, or a wrong first normal) gets a second push from there, the
+    two combined into one displacement. Writes out (M, 3); returns the number
+    of suspects inside by more than ``margin`` before correction."""
     n_inside = 0
-    nc = cand0.shape[1]
-    w = ring.shape[1]
     for i in range(item.shape[0]):
         p = push[i] * decay
         ix = item[i, 0]
@@ -557,81 +630,17 @@ def _guard_frame(item, push, direction, hint, cand0, approx0, outside0, target, 
         px = ix + p * direction[i, 0]
         py = iy + p * direction[i, 1]
         pz = iz + p * direction[i, 2]
-        best = r2
-        bi = -1
-        g = hint[i]
-        if g >= 0:
-            dd = (points[g, 0] - px) ** 2 + (points[g, 1] - py) ** 2 + (points[g, 2] - pz) ** 2
-            if dd < best:
-                best = dd
-                bi = g
-        bi, best = _grid_scan(px, py, pz, best, bi, spts, order, starts, lo, h, dims)
+        bi = _nearest_from(px, py, pz, hint[i], r2, spts, order, starts, lo, h, dims, points)
         hint[i] = bi
         if bi >= 0 and outside0[i]:
             est = _vertex_estimate(px, py, pz, bi, points, vsum)
             if est < approx0[i] - drop or est < margin:
                 # the body vertex nearest to the item vertex before any push
-                best = r2
-                near = -1
-                dd = (points[bi, 0] - ix) ** 2 + (points[bi, 1] - iy) ** 2 + (points[bi, 2] - iz) ** 2
-                if dd < best:
-                    best = dd
-                    near = bi
-                near, best = _grid_scan(ix, iy, iz, best, near, spts, order, starts, lo, h, dims)
+                near = _nearest_from(ix, iy, iz, bi, r2, spts, order, starts, lo, h, dims, points)
                 if near < 0:
                     near = bi
-                # exact closest point among the frame-0 triangles and near's ring
-                bd = np.inf
-                bs = 0.0
-                bt = 0.0
-                bin_ = False
-                btri = cand0[i, 0]
-                for k in range(nc + w):
-                    f = cand0[i, k] if k < nc else ring[near, k - nc]
-                    dist, s, t, inside = _closest_on_triangle(ix, iy, iz, f, points, faces)
-                    if dist < bd:
-                        bd = dist
-                        bs = s
-                        bt = t
-                        bin_ = inside
-                        btri = f
-                a = faces[btri, 0]
-                b = faces[btri, 1]
-                c = faces[btri, 2]
-                cx = points[a, 0] + bs * (points[b, 0] - points[a, 0]) + bt * (points[c, 0] - points[a, 0])
-                cy = points[a, 1] + bs * (points[b, 1] - points[a, 1]) + bt * (points[c, 1] - points[a, 1])
-                cz = points[a, 2] + bs * (points[b, 2] - points[a, 2]) + bt * (points[c, 2] - points[a, 2])
-                # the closest feature's pseudo-normal (face, edge or vertex)
-                if bin_:
-                    nx = face_n[btri, 0]
-                    ny = face_n[btri, 1]
-                    nz = face_n[btri, 2]
-                else:
-                    e = -1
-                    v = -1
-                    if bt == 0.0:
-                        if bs == 0.0:
-                            v = a
-                        elif bs == 1.0:
-                            v = b
-                        else:
-                            e = edge_id[btri, 0]
-                    elif bs == 0.0:
-                        if bt == 1.0:
-                            v = c
-                        else:
-                            e = edge_id[btri, 2]
-                    else:
-                        e = edge_id[btri, 1]
-                    if e >= 0:
-                        nx = edge_n[e, 0]
-                        ny = edge_n[e, 1]
-                        nz = edge_n[e, 2]
-                    else:
-                        nx, ny, nz = _vertex_pseudo_normal(v, points, faces, ring, face_n)
-                sd = np.sqrt(bd)
-                if (ix - cx) * nx + (iy - cy) * ny + (iz - cz) * nz < 0:
-                    sd = -sd
+                sd, nx, ny, nz = _exact_signed(ix, iy, iz, i, near, cand0, ring, points, faces, edge_id,
+                                               face_n, edge_n)
                 ln = max(np.sqrt(nx * nx + ny * ny + nz * nz), 1e-12)
                 if sd < -margin:
                     n_inside += 1
@@ -640,6 +649,25 @@ def _guard_frame(item, push, direction, hint, cand0, approx0, outside0, target, 
                 direction[i, 0] = nx / ln
                 direction[i, 1] = ny / ln
                 direction[i, 2] = nz / ln
+                if p >= 1e-5:
+                    qx = ix + p * direction[i, 0]
+                    qy = iy + p * direction[i, 1]
+                    qz = iz + p * direction[i, 2]
+                    near2 = _nearest_from(qx, qy, qz, near, r2, spts, order, starts, lo, h, dims, points)
+                    if near2 >= 0:
+                        sd2, mx, my, mz = _exact_signed(qx, qy, qz, i, near2, cand0, ring, points, faces,
+                                                        edge_id, face_n, edge_n)
+                        if sd2 < margin:
+                            lm = max(np.sqrt(mx * mx + my * my + mz * mz), 1e-12)
+                            extra = target[i] - sd2
+                            dx = p * direction[i, 0] + extra * mx / lm
+                            dy = p * direction[i, 1] + extra * my / lm
+                            dz = p * direction[i, 2] + extra * mz / lm
+                            p = np.sqrt(dx * dx + dy * dy + dz * dz)
+                            if p > 0.0:
+                                direction[i, 0] = dx / p
+                                direction[i, 1] = dy / p
+                                direction[i, 2] = dz / p
         if p < 1e-5:
             p = 0.0
         push[i] = p
@@ -654,6 +682,8 @@ if HAVE_NUMBA:
     _vertex_pseudo_normal = _jit(_vertex_pseudo_normal)
     _vertex_estimate = _jit(_vertex_estimate)
     _guard_estimate = _jit(_guard_estimate)
+    _exact_signed = _jit(_exact_signed)
+    _nearest_from = _jit(_nearest_from)
     _guard_frame = _jit(_guard_frame)
 
 

@@ -24,7 +24,9 @@ class PenetrationGuard:
     the margin, or still pushed) get the exact closest point among their
     frame-0 triangles and the triangles around their nearest vertex now (so a
     limb pressing into the torso is seen), and are moved out along the
-    surface normal to their clearance. Temporal coherence: a push decays
+    surface normal to their clearance; the pushed point is checked the same
+    way, and one that is still within the margin (pushed into another body
+    part, as in an armpit) gets a second push from there. Temporal coherence: a push decays
     geometrically (``decay`` per frame) instead of switching off, so vertices
     never pop; a decaying vertex is tested again only when its clearance
     estimate (push included) drops.
@@ -118,8 +120,12 @@ class PenetrationGuard:
         """Exact signed distance (len(idx),) and closest-feature normal
         (len(idx), 3) of item_points[idx] among their frame-0 triangles and
         the triangles around ``nearest_vertex`` (len(idx),)."""
+        return self._exact_at(idx, item_points[idx], nearest_vertex)
+
+    def _exact_at(self, idx: np.ndarray, points: np.ndarray, nearest_vertex: np.ndarray):
+        """:meth:`exact` for vertices idx placed at points (len(idx), 3)."""
         cand = np.concatenate([self.cand0[idx], self.query._ring[nearest_vertex]], axis=1)
-        res = self.query.closest(item_points[idx], candidates=cand, ring=False)
+        res = self.query.closest(points, candidates=cand, ring=False)
         return res["distance"], res["normal"]
 
     def apply(self, body_points: np.ndarray, item_points: np.ndarray):
@@ -156,6 +162,25 @@ class PenetrationGuard:
             need = np.where(dist < self.target[idx], self.target[idx] - dist, 0.0)
             push[idx] = np.maximum(need, push[idx])
             self.direction[idx] = n
+            # the pushed points checked the same way: one still within the
+            # margin (pushed into another body part, or a wrong first normal)
+            # is pushed again from there, both pushes combined into one
+            pushed = push[idx] >= 1e-5
+            sel = idx[pushed]
+            if len(sel):
+                q = item_points[sel] + push[sel, None] * self.direction[sel]
+                near2, _ = grid.nearest(q)
+                ok = near2 >= 0
+                sel, q = sel[ok], q[ok]
+                dist2, m = self._exact_at(sel, q, near2[ok])
+                again = dist2 < self.margin
+                sel = sel[again]
+                m = m[again] / np.maximum(np.linalg.norm(m[again], axis=1, keepdims=True), 1e-12)
+                disp = push[sel, None] * self.direction[sel] + (self.target[sel] - dist2[again])[:, None] * m
+                p = np.linalg.norm(disp, axis=1)
+                push[sel] = p
+                nz = p > 0
+                self.direction[sel[nz]] = disp[nz] / p[nz, None]
         push[push < 1e-5] = 0.0
         self.push = push
         moving = np.flatnonzero(push)
