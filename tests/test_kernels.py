@@ -152,3 +152,15 @@ def test_compiled_guard_matches_numpy_guard_over_frames():
         np.testing.assert_allclose(a, b, atol=1e-12)
         np.testing.assert_array_equal(guards[0].push > 0, guards[1].push > 0)
     assert total_inside > 100
+
+
+def test_compiled_vertex_normals_match_sparse_incidence_sum():
+    from wearfit_usd.clearance import VertexNormals
+    body = make_body(resolution=0.03).body
+    vn = VertexNormals(body.faces, len(body.points))
+    ref = vn.incidence @ kernels.face_normals(body.points, body.faces, unit=False)
+    ref /= np.linalg.norm(ref, axis=1, keepdims=True)
+    np.testing.assert_allclose(vn(body.points), ref, atol=1e-14)
+    faces = np.array([[0, 1, 2]], dtype=np.int64)  # vertex 3 unused: a zero normal
+    out = kernels.vertex_normals(np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [5, 5, 5]]), faces)
+    np.testing.assert_allclose(out, [[0, 0, 1], [0, 0, 1], [0, 0, 1], [0, 0, 0]])

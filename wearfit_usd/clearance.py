@@ -17,6 +17,7 @@ from scipy.spatial import cKDTree
 
 from .kernels import HAVE_NUMBA, closest_candidates
 from .kernels import face_normals as _compiled_face_normals
+from .kernels import vertex_normals as _compiled_vertex_normals
 
 # feature codes returned by closest_point_on_triangles
 FACE, EDGE01, EDGE12, EDGE20, VERT0, VERT1, VERT2 = range(7)
@@ -121,6 +122,8 @@ class VertexNormals:
             (np.ones(3 * t), (self.faces.ravel(), np.repeat(np.arange(t), 3))), shape=(n_vertices, t))
 
     def __call__(self, points: np.ndarray) -> np.ndarray:
+        if HAVE_NUMBA:  # one pass over the faces (per animation frame for item normals)
+            return _compiled_vertex_normals(points, self.faces)
         vn = self.incidence @ face_normals(points, self.faces, unit=False)
         ln = np.linalg.norm(vn, axis=1, keepdims=True)
         return vn / np.where(ln < 1e-300, 1.0, ln)
