@@ -71,5 +71,20 @@ def main(argv: list[str] | None = None) -> int:
         return 1
 
 
+def console() -> None:  # pragma: no cover - exercised through the installed command
+    """Entry point of the installed ``wearfit`` command: run :func:`main`,
+    flush, and leave without the interpreter's teardown. Every output is
+    written, closed and renamed into place by then; tearing down the loaded
+    USD, scipy and numba modules only cost the user another 0.3-0.4 s."""
+    import os
+    rc = main()
+    try:
+        sys.stdout.flush()
+        sys.stderr.flush()
+    except (OSError, ValueError):  # a closed pipe: nothing more to say
+        pass
+    os._exit(rc)
+
+
 if __name__ == "__main__":  # pragma: no cover
     sys.exit(main())
