@@ -95,6 +95,40 @@ def binding_microbench(repeat: int = 300) -> list[dict]:
                      "eval_vs_lbs_items": t_lbs / t_eval})
     skin_body = Skinner(ref.body.points, ref.body.joint_indices, ref.body.joint_weights, skel.n_joints)
     rows[0]["lbs_body_fps"] = 1 / _per_call(lambda: skin_body(mats), repeat)
+    rows += plan_microbench(ref, largest, layer, body, repeat)
+    return rows
+
+
+def plan_microbench(ref, largest, layer: np.ndarray, body: np.ndarray, repeat: int) -> list[dict]:
+    """The whole per-frame item evaluation of ``animate`` (a dress plan:
+    binding, rigid parts such as the shoes, loose-part smoothing) on one
+    core, for ref_male's items and with an outer layer item added (up to
+    15,000 vertices, and all of it), by :class:`frame_eval.FrameEvaluator`
+    and by ``redress.apply`` (the general path) in the same run."""
+    from dataclasses import replace
+    from wearfit_usd.frame_eval import FrameEvaluator
+    from wearfit_usd.redress import apply, plan
+    n_base = sum(m.n_points for m in ref.items)
+    rows = []
+    for label, n_layer in (("ref_male items", 0), ("ref_male items + part of an outer layer (15,000)",
+                                                    15000 - n_base),
+                           (f"ref_male items + outer layer over {largest.name}", largest.n_points)):
+        items = list(ref.items)
+        if n_layer:
+            keep = np.all(largest.faces < n_layer, axis=1)
+            items.append(replace(largest, name="outer_layer", points=layer[:n_layer],
+                                 faces=largest.faces[keep], primvars=[], normals_interpolation=None,
+                                 joint_indices=None, joint_weights=None))
+        pl = plan(replace(ref, items=items), k=5)
+        ev = FrameEvaluator(pl)
+        t_fast = _per_call(lambda: ev(body), repeat)
+        t_apply = _per_call(lambda: apply(pl, body, ref.body.faces, penetration=False), repeat)
+        rows.append({"case": f"per-frame plan evaluation, {label}", "item_vertices": int(pl.binding.n_items),
+                     "rigid_vertices": int(sum(len(g) for g, _, _ in pl.rigid_groups)),
+                     "smoothed_vertices": int(len(pl.smoother.free)) if pl.smoother is not None
+                     and pl.smoother._solver is not None else 0,
+                     "frame_eval_us": 1e6 * t_fast, "frame_eval_fps": 1 / t_fast,
+                     "apply_us": 1e6 * t_apply, "apply_fps": 1 / t_apply})
     return rows
 
 

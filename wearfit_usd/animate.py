@@ -25,6 +25,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 from .model import Character
+from .frame_eval import FrameEvaluator
 from .penetration_guard import PenetrationGuard
 from .progress import info, progress
 from .skinning import Skinner, skin_points, skinning_matrices
@@ -162,8 +163,8 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
             base = replace(target, body=body.copy_with_points(base_body), skeleton=base_skeleton, items=items)
             frame_plan = plan_dress(base, k=opt.k, bind_labels=ref_plan.bind_labels,
                                     skirt_items=ref_plan.skirt_items)
-        evaluator = lambda f, body_f: apply_plan(frame_plan, body_f, body.faces,  # noqa: E731
-                                                 penetration=False)[0]
+        frame_eval = FrameEvaluator(frame_plan)
+        evaluator = lambda f, body_f: frame_eval(body_f)  # noqa: E731
         items_for_skin = []
     rep.timings["bind"] = time.perf_counter() - t0
     # clearances to keep (and "new penetration" = inside now, outside when dressed)

@@ -75,9 +75,138 @@ def _binding_eval(points, used_faces, indptr, indices, data, buf, out):
     _csr_times_rows3(indptr, indices, data, buf, out)
 
 
+def _binding_eval_rows(points, used_faces, indptr, indices, data, rows, buf, out):
+    """:func:`_binding_eval` for a row subset of a binding matrix: row r of
+    the CSR matrix (R rows) goes to out[rows[r]] (out (M, 3), other rows
+    untouched)."""
+    n = points.shape[0]
+    for i in range(n):
+        buf[i, 0] = points[i, 0]
+        buf[i, 1] = points[i, 1]
+        buf[i, 2] = points[i, 2]
+    _face_normals(points, used_faces, True, buf[n:])
+    for u in range(used_faces.shape[0]):
+        i0 = used_faces[u, 0]
+        buf[n + u, 0] += points[i0, 0]
+        buf[n + u, 1] += points[i0, 1]
+        buf[n + u, 2] += points[i0, 2]
+    for r in range(len(indptr) - 1):
+        sx = 0.0
+        sy = 0.0
+        sz = 0.0
+        for j in range(indptr[r], indptr[r + 1]):
+            c = indices[j]
+            w = data[j]
+            sx += w * buf[c, 0]
+            sy += w * buf[c, 1]
+            sz += w * buf[c, 2]
+        o = rows[r]
+        out[o, 0] = sx
+        out[o, 1] = sy
+        out[o, 2] = sz
+
+
+def _similarity_place(ref, rows, group, s, rot, t, out):
+    """out[rows[j]] = s[g] ref[j] @ rot[g] + t[g] with g = group[j]: rigid
+    parts (ref (P, 3) their points on the reference, rot (G, 3, 3) row-vector
+    rotations, s (G,), t (G, 3))."""
+    for j in range(rows.shape[0]):
+        g = group[j]
+        x = ref[j, 0]
+        y = ref[j, 1]
+        z = ref[j, 2]
+        o = rows[j]
+        for c in range(3):
+            out[o, c] = s[g] * (x * rot[g, 0, c] + y * rot[g, 1, c] + z * rot[g, 2, c]) + t[g, c]
+
+
+def _similarity_transforms(points, mean_ptr, mean_idx, mean_w, cov_ptr, cov_idx, cov_w, src_mean, src_var,
+                           scale, s_out, rot_out, t_out):
+    """Per group g the best-fit similarity dst ~ s src @ rot + t (Umeyama)
+    from the weighted mean (row g of the CSR operator ``mean``) and the 3x3
+    cross-covariance (rows 3g..3g+2 of ``cov``) of points (N, 3); src_mean
+    (G, 3) and src_var (G,) of the source patch. Writes s_out (G,), rot_out
+    (G, 3, 3) (row vectors) and t_out (G, 3); scale False: s = 1."""
+    h = np.empty((3, 3))
+    for g in range(src_mean.shape[0]):
+        mx = 0.0
+        my = 0.0
+        mz = 0.0
+        for j in range(mean_ptr[g], mean_ptr[g + 1]):
+            v = mean_idx[j]
+            w = mean_w[j]
+            mx += w * points[v, 0]
+            my += w * points[v, 1]
+            mz += w * points[v, 2]
+        for r in range(3):
+            row = 3 * g + r
+            hx = 0.0
+            hy = 0.0
+            hz = 0.0
+            for j in range(cov_ptr[row], cov_ptr[row + 1]):
+                v = cov_idx[j]
+                w = cov_w[j]
+                hx += w * points[v, 0]
+                hy += w * points[v, 1]
+                hz += w * points[v, 2]
+            h[r, 0] = hx
+            h[r, 1] = hy
+            h[r, 2] = hz
+        u, sv, vt = np.linalg.svd(h)
+        d = 1.0 if np.linalg.det(u @ vt) >= 0 else -1.0
+        if d < 0:
+            for r in range(3):
+                u[r, 2] = -u[r, 2]
+        rot = u @ vt
+        s = (sv[0] + sv[1] + d * sv[2]) / max(src_var[g], 1e-300) if scale else 1.0
+        s_out[g] = s
+        for r in range(3):
+            for c in range(3):
+                rot_out[g, r, c] = rot[r, c]
+        t_out[g, 0] = mx - s * (src_mean[g, 0] * rot[0, 0] + src_mean[g, 1] * rot[1, 0] + src_mean[g, 2] * rot[2, 0])
+        t_out[g, 1] = my - s * (src_mean[g, 0] * rot[0, 1] + src_mean[g, 1] * rot[1, 1] + src_mean[g, 2] * rot[2, 1])
+        t_out[g, 2] = mz - s * (src_mean[g, 0] * rot[0, 2] + src_mean[g, 1] * rot[1, 2] + src_mean[g, 2] * rot[2, 2])
+
+
+def _diffusion_rhs(points, free, boundary, ref_free, ref_boundary, mass, indptr, indices, data, rhs):
+    """rhs (U, 3) = mass (U,) * (points[free] - ref_free)
+    + A @ (points[boundary] - ref_boundary) with A (U, B) in CSR: the right
+    side of :class:`redress.LooseSmoother`'s system."""
+    for r in range(free.shape[0]):
+        v = free[r]
+        m = mass[r]
+        sx = m * (points[v, 0] - ref_free[r, 0])
+        sy = m * (points[v, 1] - ref_free[r, 1])
+        sz = m * (points[v, 2] - ref_free[r, 2])
+        for j in range(indptr[r], indptr[r + 1]):
+            c = indices[j]
+            w = data[j]
+            b = boundary[c]
+            sx += w * (points[b, 0] - ref_boundary[c, 0])
+            sy += w * (points[b, 1] - ref_boundary[c, 1])
+            sz += w * (points[b, 2] - ref_boundary[c, 2])
+        rhs[r, 0] = sx
+        rhs[r, 1] = sy
+        rhs[r, 2] = sz
+
+
+def _add_rows(out, rows, base, delta):
+    """out[rows[r]] = base[r] + delta[r] for (R, 3) base and delta."""
+    for r in range(rows.shape[0]):
+        o = rows[r]
+        out[o, 0] = base[r, 0] + delta[r, 0]
+        out[o, 1] = base[r, 1] + delta[r, 1]
+        out[o, 2] = base[r, 2] + delta[r, 2]
+
+
 if HAVE_NUMBA:
     _csr_times_rows3 = _jit(_csr_times_rows3)
     _binding_eval_jit = _jit(_binding_eval)
+    _binding_eval_rows = _jit(_binding_eval_rows)
+    _similarity_place = _jit(_similarity_place)
+    _similarity_transforms = _jit(_similarity_transforms)
+    _diffusion_rhs = _jit(_diffusion_rhs)
+    _add_rows = _jit(_add_rows)
 else:  # pragma: no cover
     _binding_eval_jit = None
 
@@ -775,6 +904,21 @@ def warm_up() -> bool:
     import scipy.sparse as sp
     mat = sp.csr_matrix(np.ones((2, 6)))
     binding_eval(pts, faces, mat, np.zeros((6, 3)))
+    # the per-frame plan evaluation (frame_eval.FrameEvaluator), with the
+    # index dtypes it meets: int32 CSR indices, int64 vertex rows
+    out = np.zeros((2, 3))
+    rows = np.arange(2, dtype=np.int64)
+    _binding_eval_rows(pts, faces, mat.indptr, mat.indices, mat.data, rows, np.zeros((6, 3)), out)
+    _similarity_place(pts[:2], rows, np.zeros(2, dtype=np.int64), np.ones(1), np.eye(3)[None], np.zeros((1, 3)),
+                      out)
+    cov = sp.csr_matrix(np.ones((3, 4)))
+    mean = sp.csr_matrix(np.full((1, 4), 0.25))
+    _similarity_transforms(pts, mean.indptr, mean.indices, mean.data, cov.indptr, cov.indices, cov.data,
+                           np.zeros((1, 3)), np.ones(1), True, np.empty(1), np.empty((1, 3, 3)), np.empty((1, 3)))
+    lap = sp.csr_matrix(np.ones((2, 1)))
+    _diffusion_rhs(pts, rows, np.zeros(1, dtype=np.int64), out, out[:1], np.ones(2), lap.indptr, lap.indices,
+                   lap.data, np.empty((2, 3)))
+    _add_rows(out, rows, out.copy(), out.copy())
     return True
 
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from .kernels import assign_rows
+from .kernels import HAVE_NUMBA, _similarity_transforms, assign_rows
 
 
 class RigidParts:
@@ -63,6 +63,14 @@ class RigidParts:
     def transforms(self, body_points: np.ndarray):
         """Per group: scale (G,), row-vector rotation (G, 3, 3) and
         translation (G, 3) with dst ~ s * src @ rot + t."""
+        if HAVE_NUMBA:  # one compiled pass (the numpy calls cost ~0.2 ms a frame)
+            g = len(self.groups)
+            s, rot, t = np.empty(g), np.empty((g, 3, 3)), np.empty((g, 3))
+            m, c = self._mean, self._cov
+            _similarity_transforms(np.ascontiguousarray(body_points, dtype=np.float64), m.indptr, m.indices,
+                                   m.data, c.indptr, c.indices, c.data, self._src_mean, self._src_var,
+                                   self.scale, s, rot, t)
+            return s, rot, t
         md = self._mean @ body_points
         h = (self._cov @ body_points).reshape(-1, 3, 3)
         u, sv, vt = np.linalg.svd(h)
