@@ -11,7 +11,11 @@ target body that were outside the reference body), clearance change (median /
 edges stretched beyond the body's own local stretch (``metrics.shape_change``:
 main figures against the binding's blended body deformation and the 2K bound
 triangles with the clearance's offset factor, degenerate reference triangles
-(< 1 degree) left out and counted in ``degenerate_excluded``; ``_strict``
+(< 1 degree) left out and counted in ``degenerate_excluded``; edges of
+rigid parts left out of ``overstretch_pct`` and judged by their own
+criterion instead: ``rigid_edges`` of them, ``overstretch_rigid_pct`` beyond
+[0.8, 1.25] x their part's fitted uniform scale, ``rigid_residual_mm`` how
+far a rigid part was bent off its best-fit similarity; ``_strict``
 columns: one body triangle, nothing left out), timings (binding evaluation,
 penetration + layer passes, untangle pass); for the same-topology
 targets also the MakeHuman proxy fit (.mhclo on the recipe shape incl. helper
@@ -63,7 +67,7 @@ def _proxy_for(item, proxies):
 
 def run(full: bool, out_dir: Path) -> list[dict]:
     from wearfit_usd.clearance import SurfaceQuery
-    from wearfit_usd.metrics import clearance_change, shape_change
+    from wearfit_usd.metrics import clearance_change, item_rigid_groups, shape_change
     from wearfit_usd.mhclo import fit as mh_fit, shape_points, to_internal
     from wearfit_usd.binding import bind
     from wearfit_usd.redress import apply, fitted_body_points, plan
@@ -112,7 +116,8 @@ def run(full: bool, out_dir: Path) -> list[dict]:
                 p = pts[sl]
                 dr, dt = ref_d[i], qt.signed_distance(p)
                 sc = shape_change(item.points, p, item.faces, pl.binding.triangles[sl], pl.binding.weights[sl],
-                                  ref.body.points, body, ref.body.faces, dr)
+                                  ref.body.points, body, ref.body.faces, dr,
+                                  rigid_groups=item_rigid_groups(pl, sl))
                 row = {**base, "item": item.name, "verts": item.n_points,
                        "rigid": item.name in pl.rigid_items,
                        **{k: round(v, 3) for k, v in clearance_change(dr, dt).items()},
@@ -121,6 +126,9 @@ def run(full: bool, out_dir: Path) -> list[dict]:
                        "degenerate_excluded": sc["degenerate"], "flipped_degenerate": sc["flipped_degenerate"],
                        "overstretch_pct": round(sc["overstretch_pct"], 3),
                        "overstretch_strict_pct": round(sc["overstretch_strict_pct"], 3),
+                       "rigid_edges": sc["rigid_edges"],
+                       "overstretch_rigid_pct": round(sc["overstretch_rigid_pct"], 3),
+                       "rigid_residual_mm": round(sc["rigid_residual_mm"], 3),
                        "pushed": int(moved[sl].sum())}
                 k1 = clearance_change(dr, qt.signed_distance(pts_k1[sl]))
                 k1s = shape_change(item.points, pts_k1[sl], item.faces, wrap.triangles[sl], wrap.weights[sl],
@@ -197,6 +205,7 @@ def _table(rows):
     cols = ["reference", "target", "item", "verts", "rigid", "new_pen_pct", "mh_new_pen_pct",
             "clear_med_mm", "clear_p95_mm", "mh_clear_med_mm", "mh_clear_p95_mm", "flipped_pct",
             "flipped_strict_pct", "degenerate_excluded", "overstretch_pct", "overstretch_strict_pct",
+            "rigid_edges", "overstretch_rigid_pct", "rigid_residual_mm",
             "k1_new_pen_pct", "k1_clear_med_mm", "k1_flipped_pct", "k1_flipped_strict_pct", "k1_overstretch_pct",
             "k1_overstretch_strict_pct",
             "dist_to_mh_mean_mm", "pushed", "bind_s", "evaluate_ms",

@@ -104,3 +104,56 @@ def test_real_female_thin_ponytail(ref_female, usd_dir):
     for r in rows.values():
         assert r["flipped_pct"] == 0.0 and r["overstretch_pct"] <= 0.5, r
         assert r["new_pen_pct"] <= 0.5 and r["clear_med_mm"] <= 2.0 and r["clear_p95_mm"] <= 10.0, r
+
+
+def _box(lo, hi):
+    """A closed box item (8 corners, 12 triangles, 18 edges)."""
+    box = trimesh.creation.box(bounds=[lo, hi])
+    return np.asarray(box.vertices, float), np.asarray(box.faces, np.int64)
+
+
+def test_rigid_part_judged_by_its_own_uniform_scale():
+    """A box 5 mm over a plate that does not move, moved by a pure
+    similarity (scale 1.3, a turn, a shift): every edge grows 1.3 x, beyond
+    1.25 x the body's stretch (1), so as a free item all 18 edges are
+    over-stretched; as a rigid group they keep their shape up to the fitted
+    scale: none beyond the rigid criterion, residual 0, and none left in the
+    free figure. The same box with one corner pushed 6 mm off the similarity
+    (a per-vertex correction bending the rigid part) is caught by the rigid
+    criterion, with that residual."""
+    body, bf = _plate()
+    item, faces = _box([-0.01, -0.01, 0.005], [0.01, 0.01, 0.015])
+    a = np.radians(20)
+    rot = np.array([[np.cos(a), np.sin(a), 0], [-np.sin(a), np.cos(a), 0], [0, 0, 1]])
+    new = 1.3 * item @ rot + [0.001, 0.002, 0.0]
+    b = bind(body, bf, item, k=3)
+    args = (item, new, faces, b.triangles, b.weights, body, body, bf)
+    free = M.shape_change(*args)
+    assert free["overstretch_pct"] == 100.0 and free["rigid_edges"] == 0
+    r = M.shape_change(*args, rigid_groups=[np.arange(8)])
+    assert r["rigid_edges"] == 18 and r["overstretch_rigid_pct"] == 0.0
+    assert r["overstretch_pct"] == 0.0 and len(r["overstretched"]) == 0
+    assert r["rigid_residual_mm"] < 1e-9
+    assert r["overstretch_strict_pct"] == 100.0  # the strict figure still counts every edge
+    bent = new.copy()
+    top = np.flatnonzero(item[:, 2] > 0.01)
+    bent[top[0]] -= 0.006 * np.array([0, 0, 1.0])   # 6 mm down: its vertical edges 13 -> 7 mm (0.54 x)
+    r = M.shape_change(item, bent, faces, b.triangles, b.weights, body, body, bf, rigid_groups=[np.arange(8)])
+    assert r["overstretch_rigid_pct"] > 0.0 and len(r["overstretched_rigid"]) >= 1
+    assert 3.0 < r["rigid_residual_mm"] < 6.0
+
+
+def test_rigid_and_free_edges_counted_apart():
+    """Two boxes in one item, the first rigid, the second free and both
+    moved by the same 1.3 x similarity: the free box's 18 edges are the only
+    ones in the free figure (100 % of the free edges), the rigid box's 18
+    are counted apart and pass."""
+    body, bf = _plate()
+    b1, f1 = _box([-0.03, -0.01, 0.005], [-0.01, 0.01, 0.015])
+    b2, f2 = _box([0.01, -0.01, 0.005], [0.03, 0.01, 0.015])
+    item, faces = np.concatenate([b1, b2]), np.concatenate([f1, f2 + 8])
+    new = 1.3 * item
+    b = bind(body, bf, item, k=3)
+    r = M.shape_change(item, new, faces, b.triangles, b.weights, body, body, bf, rigid_groups=[np.arange(8)])
+    assert r["rigid_edges"] == 18 and r["overstretch_rigid_pct"] == 0.0
+    assert r["overstretch_pct"] == 100.0 and len(r["overstretched"]) == 18

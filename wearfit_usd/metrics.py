@@ -106,7 +106,8 @@ def _offset_factor(ref_body, fit_body, body_faces, tri, bary, clearance, e, edge
 
 def shape_change(ref_pts: np.ndarray, new_pts: np.ndarray, faces: np.ndarray, triangles: np.ndarray,
                  weights: np.ndarray, ref_body: np.ndarray, fit_body: np.ndarray, body_faces: np.ndarray,
-                 ref_clearance: np.ndarray | None = None, tri0: np.ndarray | None = None) -> dict:
+                 ref_clearance: np.ndarray | None = None, tri0: np.ndarray | None = None,
+                 rigid_groups: list | None = None) -> dict:
     """Flipped item triangles and edges stretched beyond the body's local
     stretch, for one item, against the deformation of the body under it.
 
@@ -144,6 +145,24 @@ def shape_change(ref_pts: np.ndarray, new_pts: np.ndarray, faces: np.ndarray, tr
     stretch (``(R' + c) / (R + c)`` for a cylinder of radius R -> R'); the
     range spans both the skin's ratios and those ratios times the factor.
 
+    Rigid parts (``rigid_groups``: list of vertex index arrays (P,) of this
+    item, each moved as a whole by one similarity transform, see
+    :func:`redress.plan`): an edge with both endpoints in one group is not
+    judged by the body's stretch but by the rigid part's own criterion: its
+    length ratio must lie within [0.8, 1.25] x the uniform scale ``s`` of the
+    best-fit similarity (Umeyama) of the group's reference points onto its
+    new points. The similarity changes every edge by exactly ``s``, while
+    the body under a shoe or a hat stretches unevenly (a foot grows longer
+    than it grows wide): a rigid part that keeps its shape can leave the
+    body's range although nothing in it stretched, and a rigid part bent by
+    per-vertex corrections can stay inside the body's range although it no
+    longer keeps its shape. These edges are left out of ``overstretch_pct``
+    and counted separately: ``rigid_edges``, ``overstretch_rigid_pct`` (% of
+    them beyond the rigid criterion) and ``rigid_residual_mm`` (largest
+    distance of a group vertex from the best-fit similarity image of its
+    reference position: how far the part was bent, 0 for a pure
+    similarity). ``overstretch_pct`` is over the other edges (0 if none).
+
     Strict secondary figures (the earlier definition): ``flipped_strict_pct``
     turns the normal by the rotation of one body triangle (``tri0`` of the
     first corner), no triangle excluded; ``overstretch_strict_pct`` uses the
@@ -152,8 +171,11 @@ def shape_change(ref_pts: np.ndarray, new_pts: np.ndarray, faces: np.ndarray, tr
 
     Returns a dict: flipped_pct, degenerate (count), flipped_degenerate
     (how many of those would count as flipped), flipped_strict_pct,
-    overstretch_pct, overstretch_strict_pct, and the indices ``flipped``
-    (triangles) and ``overstretched`` (rows of :func:`redress.edges`).
+    overstretch_pct, overstretch_strict_pct, rigid_edges,
+    overstretch_rigid_pct, rigid_residual_mm, and the indices ``flipped``
+    (triangles), ``overstretched`` (free edges beyond the body's range) and
+    ``overstretched_rigid`` (rigid edges beyond their scale), both rows of
+    :func:`redress.edges`.
     """
     from . import untangle as U
     from .redress import edges
@@ -193,14 +215,52 @@ def shape_change(ref_pts: np.ndarray, new_pts: np.ndarray, faces: np.ndarray, tr
     lo = np.minimum(smin, smin * fac)
     hi = np.maximum(smax, smax * fac)
     over = (ratio < 0.8 * lo) | (ratio > 1.25 * hi)
+    rig = rigid_edge_check(ref_pts, new_pts, e, ratio, rigid_groups)
+    free = ~rig["rigid"]
+    n_free = int(free.sum())
     n_counted = int(counted.sum())
     return {"flipped_pct": 100.0 * float((flipped & counted).sum()) / n_counted if n_counted else 0.0,
             "degenerate": int((degenerate & area_ok).sum()),
             "flipped_degenerate": int((flipped & degenerate).sum()),
             "flipped_strict_pct": strict_flip,
-            "overstretch_pct": 100.0 * float(over.mean()) if len(e) else 0.0,
+            "overstretch_pct": 100.0 * float((over & free).sum()) / n_free if n_free else 0.0,
             "overstretch_strict_pct": strict_stretch,
-            "flipped": np.flatnonzero(flipped & counted), "overstretched": np.flatnonzero(over)}
+            "rigid_edges": int(rig["rigid"].sum()),
+            "overstretch_rigid_pct": rig["over_pct"], "rigid_residual_mm": rig["residual_mm"],
+            "flipped": np.flatnonzero(flipped & counted), "overstretched": np.flatnonzero(over & free),
+            "overstretched_rigid": np.flatnonzero(rig["over"])}
+
+
+def rigid_edge_check(ref_pts: np.ndarray, new_pts: np.ndarray, e: np.ndarray, ratio: np.ndarray,
+                     rigid_groups: list | None) -> dict:
+    """The rigid parts' own shape criterion (see :func:`shape_change`).
+
+    ref_pts/new_pts (M, 3), edges e (E, 2) with length ratios (E,),
+    rigid_groups: vertex index arrays (P,) (None or empty: no rigid part).
+    Returns {"rigid" (E,) bool: both endpoints in one group, "over" (E,)
+    bool: ratio outside [0.8, 1.25] x the group's fitted uniform scale,
+    "over_pct": % of the rigid edges, "residual_mm": largest distance (mm)
+    of a group vertex from the best-fit similarity image of its reference
+    position}."""
+    from .redress import similarity_fit
+    group = np.full(len(ref_pts), -1)
+    scale = np.ones(len(rigid_groups or []))
+    residual = 0.0
+    for g, gv in enumerate(rigid_groups or []):
+        gv = np.asarray(gv, dtype=np.int64)
+        if len(gv) < 3:
+            continue
+        group[gv] = g
+        s, rot, t = similarity_fit(ref_pts[gv], new_pts[gv])
+        scale[g] = s
+        residual = max(residual, float(np.linalg.norm(s * ref_pts[gv] @ rot + t - new_pts[gv], axis=1).max()))
+    ga = group[e[:, 0]] if len(e) else np.zeros(0, dtype=np.int64)
+    rigid = (ga >= 0) & (ga == group[e[:, 1]]) if len(e) else np.zeros(0, dtype=bool)
+    s_e = scale[np.where(rigid, ga, 0)] if len(scale) else np.ones(len(e))
+    over = rigid & ((ratio < 0.8 * s_e) | (ratio > 1.25 * s_e))
+    n = int(rigid.sum())
+    return {"rigid": rigid, "over": over, "over_pct": 100.0 * float(over.sum()) / n if n else 0.0,
+            "residual_mm": 1000.0 * residual}
 
 
 def clearance_change(ref_clearance: np.ndarray, new_clearance: np.ndarray, inside: float = 0.001) -> dict:
@@ -210,6 +270,13 @@ def clearance_change(ref_clearance: np.ndarray, new_clearance: np.ndarray, insid
     return {"new_pen_pct": 100.0 * float(np.mean((ref_clearance > 0) & (new_clearance < -inside))),
             "clear_med_mm": 1000.0 * float(np.median(ch)),
             "clear_p95_mm": 1000.0 * float(np.percentile(ch, 95))}
+
+
+def item_rigid_groups(plan, sl: slice) -> list:
+    """The rigid groups of a :class:`redress.DressPlan` that lie in the item
+    of rows ``sl``, as vertex indices of that item."""
+    return [np.asarray(gv) - sl.start for gv, _, _ in plan.rigid_groups
+            if len(gv) and sl.start <= int(np.min(gv)) and int(np.max(gv)) < sl.stop]
 
 
 def dress_report(reference, target, result) -> list[dict]:
@@ -225,8 +292,9 @@ def dress_report(reference, target, result) -> list[dict]:
         dr = qr.signed_distance(item.points)
         dt = qt.signed_distance(new.points)
         sc = shape_change(item.points, new.points, item.faces, pl.binding.triangles[sl], pl.binding.weights[sl],
-                          reference.body.points, result.body_points, reference.body.faces, dr)
+                          reference.body.points, result.body_points, reference.body.faces, dr,
+                          rigid_groups=item_rigid_groups(pl, sl))
         rows.append({"item": item.name, "verts": item.n_points, **clearance_change(dr, dt),
-                     **{k: v for k, v in sc.items() if k not in ("flipped", "overstretched")},
+                     **{k: v for k, v in sc.items() if k not in ("flipped", "overstretched", "overstretched_rigid")},
                      "rigid": item.name in pl.rigid_items})
     return rows
