@@ -301,3 +301,28 @@ def test_lift_folds_moves_a_folded_patch_as_a_whole():
     assert (out[mid] - before[mid]) @ u >= np.linalg.norm(after[mid] - before[mid]) - 1e-12
     assert lifted[mid] and not lifted.all()
     np.testing.assert_allclose(out[~lifted], after[~lifted])
+
+
+def test_rigid_parts_keep_their_authored_insets(ref_male, usd_dir):
+    """On the CMU-rig body (the reference's shape under other joint names)
+    the rigid shoes, hat and short hair come out exactly as authored: no
+    vertex bent off the similarity, no edge beyond the rigid criterion,
+    the shoe's insole still as deep inside the foot as on the reference
+    (pushing those inherited insets out one vertex at a time used to bend
+    22 shoe edges to 0.5-2.6 x their length)."""
+    from wearfit_usd.metrics import dress_report
+    from wearfit_usd.usd_io import read_character
+    tgt = read_character(usd_dir / "body_male_cmu_rig.usdc")
+    res = redress.dress(ref_male, tgt)
+    rows = {r["item"]: r for r in dress_report(ref_male, tgt, res)}
+    pl = res.plan
+    assert set(pl.rigid_items) >= {"shoes01", "short02", "fedora01"}
+    for name in pl.rigid_items:
+        r = rows[name]
+        assert r["rigid_edges"] > 0 and r["overstretch_rigid_pct"] == 0.0, r
+        assert r["rigid_residual_mm"] < 0.01 and r["clear_p95_mm"] < 0.01, r
+    sl = pl.item_slices()[[m.name for m in pl.items].index("shoes01")]
+    inset = pl.ref_clearance[sl] < -0.001
+    assert inset.sum() > 10
+    q = SurfaceQuery(ref_male.body.faces, res.body_points)
+    np.testing.assert_allclose(q.signed_distance(res.points[sl][inset]), pl.ref_clearance[sl][inset], atol=1e-5)

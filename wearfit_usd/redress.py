@@ -378,6 +378,13 @@ class DressPlan:
         if self.rigid_groups:
             self.rigid_parts = RigidParts(self.rigid_groups, self.ref_body, self.ref_points)
 
+    def rigid_mask(self) -> np.ndarray:
+        """(M,) bool: item vertices of the rigid groups."""
+        m = np.zeros(len(self.ref_points), dtype=bool)
+        for gv, _, _ in self.rigid_groups:
+            m[gv] = True
+        return m
+
     def item_slices(self):
         return [slice(int(a), int(b)) for a, b in zip(self.offsets[:-1], self.offsets[1:])]
 
@@ -607,7 +614,8 @@ def apply(plan_: DressPlan, body_points: np.ndarray, body_faces: np.ndarray,
     clearance; those that were inside the reference body already (a flaw of
     the asset, e.g. a tight suit fitted by MakeHuman, which hides the skin
     under clothes instead) by more than ``inherited_clearance`` are pushed out
-    to that clearance, unless ``push_inherited`` is False.
+    to that clearance, unless ``push_inherited`` is False; vertices of rigid
+    groups keep such authored insets (they move as a whole).
 
     untangle: after the penetration and layer passes, re-solve the
     neighbourhoods of folded item triangles and badly stretched edges so they
@@ -647,8 +655,16 @@ def apply(plan_: DressPlan, body_points: np.ndarray, body_faces: np.ndarray,
         est = np.einsum("ij,ij->i", pts - body_points[vn], normals[vn])
         cand |= est < margin
         # inherited: only deeper than inherited_clearance (skin showing through);
-        # shallower ones lie on the skin (eyebrows) and are left alone
+        # shallower ones lie on the skin (eyebrows) and are left alone. Rigid
+        # parts keep their authored insets (a shoe's insole 0.5-5 mm inside
+        # the foot sole, hair-card roots under the scalp): they move as a
+        # whole, and pushing single vertices of them out to the surface is
+        # what bent them (every over-stretched shoe and short-hair edge on
+        # the reference-shaped CMU-rig body came from it); they are still
+        # pushed out where they newly penetrate
         inherited = push_inherited & (plan_.ref_clearance < -inherited_clearance)
+        if plan_.rigid_groups:
+            inherited &= ~plan_.rigid_mask()
         target = np.where(plan_.ref_clearance > 0, plan_.ref_clearance,
                           np.where(inherited, inherited_clearance, np.nan))
         debug(f"penetration pass: {int(cand.sum())} of {len(cand)} vertices tested")
