@@ -16,6 +16,11 @@ import os
 
 import numpy as np
 
+# numba's OpenMP threads (the guard's parallel loop) wait for work asleep,
+# not spinning: a spinning thread takes a core from the main thread between
+# frames, and on a busy machine that made animate slower than one thread
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
 try:  # pragma: no cover - depends on the install
     if os.environ.get("WEARFIT_NO_NUMBA"):
         raise ImportError("disabled by WEARFIT_NO_NUMBA")
