@@ -21,3 +21,6 @@ python3 -c "import OpenGL; assert OpenGL.__version__ == '3.1.10', OpenGL.__versi
 python3 -c "import wearfit_usd, pxr, pyrender; print('wearfit_usd installed')"
 # compile the numba kernels once now (cached beside the package), not on the first run
 python3 -m wearfit_usd.kernels
+# byte-compile the package as pip does for regular installs (an editable install
+# skips it; with PYTHONDONTWRITEBYTECODE set every run would compile it again)
+python3 -m compileall -q wearfit_usd
