@@ -17,6 +17,7 @@ same key.
 """
 from __future__ import annotations
 
+import functools
 import json
 import re
 from dataclasses import dataclass, field
@@ -31,6 +32,7 @@ _PREFIX = re.compile(r"^(?:.*[:|])?(?:(?:def|org|mch|drv)[-_.]|mixamorig\d*[_:]?
                      r"cc_base_|b_)?", re.IGNORECASE)
 
 
+@functools.lru_cache(maxsize=8192)  # pure; retargeting asks for the same names many times
 def normalize(name: str) -> tuple[str, str]:
     """Joint name -> (side, base): side "l", "r" or "", base lower-case
     alphanumerics. ``"mixamorig:LeftUpLeg"`` -> ("l", "upleg"),
