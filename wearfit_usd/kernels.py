@@ -635,19 +635,17 @@ class RadiusGrid:
 # ----------------------------------------------------------------------------
 # the per-frame penetration guard (penetration_guard.PenetrationGuard)
 
-def _body_normals(faces, edge_id, face_n, edge_n, vsum):
-    """From unit face normals face_n (T, 3): edge pseudo-normals (E, 3) and
-    per-vertex sums (N, 3) of the adjacent faces' unit normals (faces added
-    in index order, as the sparse incidence products of clearance.py do)."""
-    edge_n[:] = 0.0
+def _body_normals(faces, face_n, vsum):
+    """Per-vertex sums vsum (N, 3) of the adjacent faces' unit normals face_n
+    (T, 3), faces added in index order (as clearance.py's sparse incidence
+    product does)."""
     vsum[:] = 0.0
     for f in range(faces.shape[0]):
         for k in range(3):
-            e = edge_id[f, k]
             v = faces[f, k]
-            for j in range(3):
-                edge_n[e, j] += face_n[f, j]
-                vsum[v, j] += face_n[f, j]
+            vsum[v, 0] += face_n[f, 0]
+            vsum[v, 1] += face_n[f, 1]
+            vsum[v, 2] += face_n[f, 2]
 
 
 def _vertex_pseudo_normal(v, points, faces, ring, face_n):
@@ -716,10 +714,12 @@ def _guard_estimate(q, hint, points, vsum, spts, order, starts, lo, h, dims, r2,
             out_vi[i] = bi
 
 
-def _exact_signed(ix, iy, iz, i, near, cand0, ring, points, faces, edge_id, face_n, edge_n):
+def _exact_signed(ix, iy, iz, i, near, cand0, ring, points, faces, edge_id, face_n, edge_faces):
     """Signed distance of (ix, iy, iz) to the closest of the triangles
     cand0[i] and ring[near] (first wins ties), sign and normal (not unit)
-    from the closest feature's pseudo-normal, as clearance.SurfaceQuery."""
+    from the closest feature's pseudo-normal, as clearance.SurfaceQuery
+    (an edge's: the sum of its faces' unit normals, edge_faces (E, w) in
+    index order, -1 padded)."""
     nc = cand0.shape[1]
     bd = np.inf
     bs = 0.0
@@ -763,9 +763,16 @@ def _exact_signed(ix, iy, iz, i, near, cand0, ring, points, faces, edge_id, face
         else:
             e = edge_id[btri, 1]
         if e >= 0:
-            nx = edge_n[e, 0]
-            ny = edge_n[e, 1]
-            nz = edge_n[e, 2]
+            nx = 0.0
+            ny = 0.0
+            nz = 0.0
+            for k in range(edge_faces.shape[1]):
+                f = edge_faces[e, k]
+                if f < 0:
+                    break
+                nx += face_n[f, 0]
+                ny += face_n[f, 1]
+                nz += face_n[f, 2]
         else:
             nx, ny, nz = _vertex_pseudo_normal(v, points, faces, ring, face_n)
     sd = np.sqrt(bd)
@@ -789,7 +796,7 @@ def _nearest_from(qx, qy, qz, g, r2, spts, order, starts, lo, h, dims, points):
 
 
 def _guard_frame(item, push, direction, hint, cand0, approx0, outside0, target, decay, margin, drop,
-                 points, faces, edge_id, ring, face_n, edge_n, vsum,
+                 points, faces, edge_id, ring, face_n, edge_faces, vsum,
                  spts, order, starts, lo, h, dims, r2, out):
     """One frame of :meth:`penetration_guard.PenetrationGuard.apply` for all
     item vertices item (M, 3): decays push (M,) (direction (M, 3)), finds the
@@ -822,7 +829,7 @@ def _guard_frame(item, push, direction, hint, cand0, approx0, outside0, target, 
                 if near < 0:
                     near = bi
                 sd, nx, ny, nz = _exact_signed(ix, iy, iz, i, near, cand0, ring, points, faces, edge_id,
-                                               face_n, edge_n)
+                                               face_n, edge_faces)
                 ln = max(np.sqrt(nx * nx + ny * ny + nz * nz), 1e-12)
                 if sd < -margin:
                     n_inside += 1
@@ -838,7 +845,7 @@ def _guard_frame(item, push, direction, hint, cand0, approx0, outside0, target, 
                     near2 = _nearest_from(qx, qy, qz, near, r2, spts, order, starts, lo, h, dims, points)
                     if near2 >= 0:
                         sd2, mx, my, mz = _exact_signed(qx, qy, qz, i, near2, cand0, ring, points, faces,
-                                                        edge_id, face_n, edge_n)
+                                                        edge_id, face_n, edge_faces)
                         if sd2 < margin:
                             lm = max(np.sqrt(mx * mx + my * my + mz * mz), 1e-12)
                             extra = target[i] - sd2

@@ -52,10 +52,15 @@ class PenetrationGuard:
         self._incidence = VertexNormals(self.faces, len(body_points0)).incidence
         self._grid = None
         if self.compiled:
-            n_edges = int(self.query._edge_id.max()) + 1
             self._edge_id = np.ascontiguousarray(self.query._edge_id, dtype=np.int64)
             self._ring = np.ascontiguousarray(self.query._ring, dtype=np.int64)
-            self._edge_n = np.empty((n_edges, 3))
+            # the faces of each edge in index order (-1 padded): edge normals on demand
+            inc = self.query._edge_inc.tocsr()
+            inc.sort_indices()
+            counts = np.diff(inc.indptr)
+            self._edge_faces = np.full((inc.shape[0], max(int(counts.max()), 1)), -1, dtype=np.int64)
+            self._edge_faces[np.repeat(np.arange(inc.shape[0]), counts),
+                             np.arange(inc.nnz) - np.repeat(inc.indptr[:-1], counts)] = inc.indices
             self._vsum = np.empty((len(body_points0), 3))
             self._normals_of = None  # the body points the normal sums belong to
         c0 = self.query.signed_distance(item_points0)
@@ -110,10 +115,10 @@ class PenetrationGuard:
         return self._grid
 
     def _sum_normals(self) -> None:
-        """Edge pseudo-normals and per-vertex normal sums of the current body
-        (compiled path), once per :meth:`update`."""
+        """Per-vertex normal sums of the current body (compiled path), once
+        per :meth:`update`."""
         if self._normals_of is not self.query.points:
-            kernels._body_normals(self.faces, self._edge_id, self.query.face_normal, self._edge_n, self._vsum)
+            kernels._body_normals(self.faces, self.query.face_normal, self._vsum)
             self._normals_of = self.query.points
 
     def exact(self, idx: np.ndarray, item_points: np.ndarray, nearest_vertex: np.ndarray):
@@ -140,7 +145,7 @@ class PenetrationGuard:
             n_inside = kernels._guard_frame(
                 q, self.push, self.direction, self._hint, self.cand0, self.approx0, self.outside0,
                 self.target, self.decay, self.margin, self.DROP, self.query.points, self.faces,
-                self._edge_id, self._ring, self.query.face_normal, self._edge_n, self._vsum,
+                self._edge_id, self._ring, self.query.face_normal, self._edge_faces, self._vsum,
                 grid._sorted, grid._order, grid._starts, grid._lo, grid._h, grid._dims, self.radius ** 2, out)
             return out, int(n_inside)
         push = self.push * self.decay
