@@ -326,3 +326,45 @@ def test_rigid_parts_keep_their_authored_insets(ref_male, usd_dir):
     assert inset.sum() > 10
     q = SurfaceQuery(ref_male.body.faces, res.body_points)
     np.testing.assert_allclose(q.signed_distance(res.points[sl][inset]), pl.ref_clearance[sl][inset], atol=1e-5)
+
+
+def test_spread_corrections_on_a_flat_sheet():
+    """A flat sheet (10 mm grid) with its centre vertex pushed 10 mm up and
+    a neighbour 1 mm: alone, the pushed vertex's edges become 1.41 x as long.
+    Spread over the sheet, every edge stays within [0.8, 1.25] x its length,
+    the centre keeps exactly its push, the neighbour goes at least its own
+    1 mm (farther: it follows the larger push), every vertex only moves up
+    and by no more than the largest push, and the sheet beyond the rings
+    does not move."""
+    grid, faces = _grid(n=25, step=0.01)
+    nb = redress.adjacency(faces, len(grid))
+    centre = int(np.argmin(np.linalg.norm(grid - [0.12, 0.12, 0.0], axis=1)))
+    side = int(np.argmin(np.linalg.norm(grid - [0.13, 0.12, 0.0], axis=1)))
+    after = grid.copy()
+    after[centre, 2] += 0.010
+    after[side, 2] += 0.001
+    req = np.zeros(len(grid), bool)
+    req[[centre, side]] = True
+    e = redress.edges(faces)
+
+    def ratio(p):
+        return np.linalg.norm(p[e[:, 0]] - p[e[:, 1]], axis=1) / np.linalg.norm(grid[e[:, 0]] - grid[e[:, 1]], axis=1)
+
+    assert ratio(after).max() > 1.4
+    out, spread = redress.spread_corrections(grid, grid, after, req, nb)
+    r = ratio(out)
+    assert 0.8 <= r.min() and r.max() <= 1.25, (r.min(), r.max())
+    d = out - grid
+    assert abs(d[centre, 2] - 0.010) < 1e-12
+    assert d[side, 2] > 0.001 + 1e-4
+    np.testing.assert_allclose(d[:, :2], 0.0, atol=1e-12)
+    assert d[:, 2].min() >= -1e-12 and d[:, 2].max() <= 0.010 + 1e-12
+    rings = np.abs(grid[:, :2] - grid[centre, :2]).max(axis=1) / 0.01  # grid rings of the diagonal mesh
+    assert np.all(d[rings > redress.SPREAD_RINGS + 1] == 0.0)
+    assert spread[centre] == False and spread[side] and spread.sum() > 50
+    # fixed vertices (a rigid part) are left alone
+    fixed = np.zeros(len(grid), bool)
+    fixed[side] = True
+    out2, spread2 = redress.spread_corrections(grid, grid, after, req, nb, fixed=fixed)
+    np.testing.assert_allclose(out2[side], after[side])
+    assert not spread2[side]

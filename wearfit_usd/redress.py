@@ -12,8 +12,10 @@ Pipeline (internal space, Y up, metres):
    the target); small stiff parts (shoes, hat, glasses, watch) instead follow
    a best-fit similarity transform of their bound body patch;
 4. push item vertices that went inside the target body (but were outside the
-   reference body) back out to their reference clearance, with a light
-   smoothing of the moved vertices and their neighbours (:func:`push_out`).
+   reference body) back out to their reference clearance (:func:`push_out`),
+   lift outer layers over inner ones (:func:`keep_layers`), and spread these
+   per-vertex corrections smoothly over the item mesh
+   (:func:`spread_corrections`).
 """
 from __future__ import annotations
 
@@ -324,6 +326,96 @@ def push_out(body_query: SurfaceQuery, item_points: np.ndarray, min_clearance: n
     return pts, moved
 
 
+SPREAD_LENGTH = 0.08  # m: fade-out length of a per-vertex correction spread over the item mesh
+SPREAD_RINGS = 8      # rings of neighbours around the corrected vertices that may follow
+SPREAD_CLEARANCE_DRIFT = 0.001  # m: the spread may move an item's median vertex by at most this
+
+
+def spread_corrections(ref_pts: np.ndarray, before: np.ndarray, after: np.ndarray, required: np.ndarray,
+                       neighbours: sp.spmatrix, fixed: np.ndarray | None = None,
+                       length: float = SPREAD_LENGTH, rings: int = SPREAD_RINGS,
+                       rounds: int = 3) -> tuple[np.ndarray, np.ndarray]:
+    """Spread per-vertex corrections smoothly over the item mesh.
+
+    ``after`` (M, 3) is ``before`` (M, 3) with the ``required`` (M,) bool
+    vertices moved one by one (pushed out of the body, lifted over an inner
+    layer). Moving single vertices stretches or shortens every edge at them;
+    here the correction field ``d = after - before`` is extended to the
+    vertices within ``rings`` rings (never to ``fixed`` ones, e.g. rigid
+    parts) by a screened harmonic extension on the reference item
+    ``ref_pts`` (M, 3): on the free vertices ``D`` minimises
+
+        sum_edges |D_i - D_j|^2 / l_ij^2  +  sum_i deg_i |D_i|^2 / length^2
+
+    (``l_ij`` reference edge lengths: the first term is the strain the
+    correction adds, the second lets it fade out over about ``length``),
+    with ``D = d`` on the required vertices, ``D = 0`` beyond the rings.
+    Every required vertex keeps at least its own correction: where the
+    extension of its neighbours' corrections would carry it farther along
+    its own (a small push next to a large one), it is released and follows
+    the smooth field instead (an active set, ``rounds`` times).
+    Returns (points (M, 3), vertices moved by the spread (M,) bool).
+    """
+    from .sparse_solve import SPDSolver
+    req = np.asarray(required, dtype=bool)
+    out = np.array(after, dtype=np.float64, copy=True)
+    spread = np.zeros(len(out), dtype=bool)
+    if fixed is not None:
+        req = req & ~fixed
+    if not req.any():
+        return out, spread
+    a = neighbours.tocsr().astype(np.float64)
+    a.data[:] = 1.0
+    zone = req.copy()
+    for _ in range(rings):
+        zone |= (a @ zone.astype(np.float64)) > 0
+    if fixed is not None:
+        zone &= ~fixed
+    zi = np.flatnonzero(zone)
+    az = a[zi][:, zi].tocoo()
+    lz = np.linalg.norm(ref_pts[zi[az.row]] - ref_pts[zi[az.col]], axis=1)
+    w = sp.csr_matrix((1.0 / np.maximum(lz, 1e-6) ** 2, (az.row, az.col)), shape=(len(zi), len(zi)))
+    deg = np.asarray(a[zi].sum(axis=1)).ravel()
+    # vertices beyond the rings are fixed at D = 0: their edges only add to the diagonal
+    wfull = np.asarray(w.sum(axis=1)).ravel()
+    ar = a[zi].tocoo()
+    lo = np.linalg.norm(ref_pts[zi[ar.row]] - ref_pts[ar.col], axis=1)
+    outside = ~zone[ar.col]
+    wout = np.bincount(ar.row[outside], weights=1.0 / np.maximum(lo[outside], 1e-6) ** 2, minlength=len(zi))
+    lap = (sp.diags(wfull + wout + deg / length ** 2) - w).tocsr()
+    d = (np.asarray(after, dtype=np.float64) - before)[zi]
+    dn = np.linalg.norm(d, axis=1)
+    u = d / np.maximum(dn, 1e-300)[:, None]
+    req_z = req[zi]
+    active = req_z.copy()
+    for _ in range(rounds):
+        f = np.flatnonzero(~active)
+        c = np.flatnonzero(active)
+        dz = np.zeros_like(d)
+        dz[c] = d[c]
+        if len(f):
+            rhs = -(lap[f][:, c] @ d[c])
+            solver = SPDSolver()
+            solver.factor(lap[f][:, f].tocsc())
+            dz[f] = solver.solve(np.ascontiguousarray(rhs))
+        # the constraint D_c = d_c's multiplier along the correction: positive
+        # = it holds the vertex back (the field would carry it farther out):
+        # release it; a released vertex that falls short of its own
+        # correction is held again
+        mult = np.zeros(len(zi))
+        mult[c] = -np.einsum("ij,ij->i", lap[c] @ dz, u[c])
+        short = req_z & ~active & (np.einsum("ij,ij->i", dz, u) < dn - 1e-6)
+        release = active & (mult > 1e-9 * np.maximum(lap.diagonal() * dn, 1e-300))
+        if not release.any() and not short.any():
+            break
+        active = (active & ~release) | short
+    short = req_z & (np.einsum("ij,ij->i", dz, u) < dn - 1e-6)
+    dz[short] = d[short]
+    out[zi] = before[zi] + dz
+    spread[zi] = np.linalg.norm(dz - d, axis=1) > 1e-12
+    return out, spread
+
+
 # --------------------------------------------------------------------------
 # body fit
 
@@ -607,7 +699,7 @@ class DressResult:
 def apply(plan_: DressPlan, body_points: np.ndarray, body_faces: np.ndarray,
           penetration: bool = True, query: SurfaceQuery | None = None, margin: float = 0.003,
           near_other: float = 0.03, push_inherited: bool = True, inherited_clearance: float = 0.001,
-          untangle: bool = True):
+          untangle: bool = True, spread: bool = True):
     """Evaluate a plan on fitted body points (reference topology).
 
     Vertices that end inside the body are pushed out to their reference
@@ -616,6 +708,11 @@ def apply(plan_: DressPlan, body_points: np.ndarray, body_faces: np.ndarray,
     under clothes instead) by more than ``inherited_clearance`` are pushed out
     to that clearance, unless ``push_inherited`` is False; vertices of rigid
     groups keep such authored insets (they move as a whole).
+
+    spread: the penetration and layer passes move single vertices; spread
+    their corrections smoothly over the item mesh (:func:`spread_corrections`,
+    every vertex at least as far as its own correction; rigid parts
+    excluded) instead of only smoothing their 1-ring.
 
     untangle: after the penetration and layer passes, re-solve the
     neighbourhoods of folded item triangles and badly stretched edges so they
@@ -668,18 +765,62 @@ def apply(plan_: DressPlan, body_points: np.ndarray, body_faces: np.ndarray,
         target = np.where(plan_.ref_clearance > 0, plan_.ref_clearance,
                           np.where(inherited, inherited_clearance, np.nan))
         debug(f"penetration pass: {int(cand.sum())} of {len(cand)} vertices tested")
-        pts, moved = push_out(query, pts, target, mask=cand, neighbours=plan_.neighbours)
+        # with ``spread`` the per-vertex corrections are made alone and then
+        # spread over the item mesh (spread_corrections), which replaces
+        # push_out's light smoothing of the 1-ring
+        before = pts
+        ring_nb = plan_.neighbours
+        if spread:  # rigid parts (not spread) keep the 1-ring smoothing
+            rig = plan_.rigid_mask() if plan_.rigid_groups else np.zeros(len(pts), dtype=bool)
+            ring_nb = (sp.diags(rig.astype(np.float64)) @ plan_.neighbours @ sp.diags(rig.astype(np.float64))
+                       + sp.diags((~rig).astype(np.float64))).tocsr()
+        pts, moved = push_out(query, pts, target, mask=cand, neighbours=ring_nb)
         if plan_.smoother is not None and np.any(moved & (plan_.looseness > 0)):
             # loose parts: spread the push over the neighbourhood (a smooth
             # bulge, not a spike), then push out what went back inside
             pts = plan_.smoother(pts, plan_.ref_points)
             again = cand | moved
-            pts, moved2 = push_out(query, pts, target, mask=again, neighbours=plan_.neighbours)
+            pts, moved2 = push_out(query, pts, target, mask=again, neighbours=ring_nb)
             moved |= moved2
+        footprints = None
         if plan_.layers:
             # layers keep their order: an outer item stays over the item under it
-            pts, moved3 = keep_layers(query, pts, plan_.offsets, plan_.layers)
+            res = query.closest(pts)
+            footprints = {k: res[k] for k in ("distance", "point", "normal")}
+            pts, moved3 = keep_layers(query, pts, plan_.offsets, plan_.layers, footprints=footprints)
             moved |= moved3
+        if spread:
+            # single-vertex corrections stretch every edge at them: spread
+            # them smoothly over the item, each vertex still at least as far
+            # as its own; then check the spread vertices once more
+            req = moved | (np.abs(pts - before).max(axis=1) > 1e-6)
+            single = pts
+            pts, spread_v = spread_corrections(plan_.ref_points, before, single, req, plan_.neighbours,
+                                               fixed=plan_.rigid_mask() if plan_.rigid_groups else None)
+            # an item the spread would move as a whole (a thin necklace lifted
+            # over a shirt) keeps the single-vertex corrections: the spread
+            # may change its median clearance by at most SPREAD_CLEARANCE_DRIFT
+            # (its extra displacement bounds the clearance change)
+            extra = np.linalg.norm(pts - single, axis=1)
+            for a, b in zip(plan_.offsets[:-1], plan_.offsets[1:]):
+                if spread_v[a:b].any() and np.median(extra[a:b]) > SPREAD_CLEARANCE_DRIFT:
+                    pts[a:b] = single[a:b]
+                    spread_v[a:b] = False
+            if spread_v.any():
+                # only vertices the spread moved by more than their estimated
+                # clearance (less the margin) can have gone inside
+                shift = np.linalg.norm(pts - before, axis=1)
+                check = spread_v & (np.minimum(d_loc, est) < shift + margin)
+                pts, moved4 = push_out(query, pts, target, mask=check)
+                moved |= spread_v | moved4
+                if plan_.layers:
+                    sv = np.flatnonzero(moved)
+                    res = query.closest(pts[sv])
+                    for k in footprints:
+                        footprints[k][sv] = res[k]
+                    pts, moved5 = keep_layers(query, pts, plan_.offsets, plan_.layers, mask=spread_v,
+                                              footprints=footprints)
+                    moved |= moved5
     t2 = time.perf_counter()
     timings = {"evaluate_s": t1 - t0, "penetration_s": t2 - t1}
     if penetration and untangle:
