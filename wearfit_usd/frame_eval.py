@@ -31,16 +31,10 @@ class FrameEvaluator:
         self.n_items = m
         self.compiled = kernels.HAVE_NUMBA
         parts = plan.rigid_parts
-        if parts is not None and len(parts):
-            rigid_rows = np.concatenate(parts.groups)
-            self._rigid_rows = np.ascontiguousarray(rigid_rows, dtype=np.int64)
-            self._rigid_group = np.repeat(np.arange(len(parts.groups)), [len(g) for g in parts.groups])
-            self._rigid_ref = np.ascontiguousarray(np.concatenate(parts.ref_points), dtype=np.float64)
-        else:
-            rigid_rows = np.zeros(0, dtype=np.int64)
-            self._rigid_rows = None
+        self._rigid = parts is not None and len(parts) > 0
         free = np.ones(m, dtype=bool)
-        free[rigid_rows] = False
+        if self._rigid:
+            free[parts._rows] = False
         self._free_rows = np.flatnonzero(free).astype(np.int64)
         # the binding rows the rigid parts do not overwrite (same column layout)
         self._matrix = b._compact[self._free_rows]
@@ -71,10 +65,9 @@ class FrameEvaluator:
         m = self._matrix
         kernels._binding_eval_rows(p, self._used_faces, m.indptr, m.indices, m.data, self._free_rows,
                                    self._buf, out)
-        if self._rigid_rows is not None:
-            s, rot, t = plan.rigid_parts.transforms(p)
-            kernels._similarity_place(self._rigid_ref, self._rigid_rows, self._rigid_group, s,
-                                      np.ascontiguousarray(rot), np.ascontiguousarray(t), out)
+        if self._rigid:
+            parts = plan.rigid_parts
+            parts.place(*parts.transforms(p), out)
         if self._smooth:
             sm = plan.smoother
             lap = self._lap

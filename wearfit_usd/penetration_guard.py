@@ -49,9 +49,10 @@ class PenetrationGuard:
         self.radius = float(radius)
         self.compiled = kernels.HAVE_NUMBA if compiled is None else bool(compiled and kernels.HAVE_NUMBA)
         self.query = SurfaceQuery(self.faces, body_points0)
-        self._incidence = VertexNormals(self.faces, len(body_points0)).incidence
         self._grid = None
-        if self.compiled:
+        if not self.compiled:  # vertex normal sums for the numpy estimate
+            self._incidence = VertexNormals(self.faces, len(body_points0)).incidence
+        else:
             self._edge_id = np.ascontiguousarray(self.query._edge_id, dtype=np.int64)
             self._ring = np.ascontiguousarray(self.query._ring, dtype=np.int64)
             # the faces of each edge in index order (-1 padded): edge normals on demand

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from .kernels import HAVE_NUMBA, _similarity_transforms, assign_rows
+from .kernels import HAVE_NUMBA, _similarity_place, _similarity_transforms, assign_rows
 
 
 class RigidParts:
@@ -28,6 +28,11 @@ class RigidParts:
         self.scale = scale
         self.groups = [np.asarray(gv, dtype=np.int64) for gv, _, _ in groups]
         self.ref_points = [np.ascontiguousarray(ref_points[gv]) for gv in self.groups]
+        # all groups' vertices in one run for the compiled placement
+        self._rows = np.concatenate(self.groups) if self.groups else np.zeros(0, dtype=np.int64)
+        self._group = np.repeat(np.arange(len(self.groups)), [len(gv) for gv in self.groups])
+        self._ref_all = (np.ascontiguousarray(np.concatenate(self.ref_points), dtype=np.float64)
+                         if self.groups else np.zeros((0, 3)))
         n_body = len(ref_body)
         g = len(groups)
         self._mean = None
@@ -87,7 +92,12 @@ class RigidParts:
 
     def place(self, s: np.ndarray, rot: np.ndarray, t: np.ndarray, points: np.ndarray) -> np.ndarray:
         """Write the groups moved by :meth:`transforms`' output into
-        ``points`` (M, 3), in place; returns it."""
+        ``points`` (M, 3, C-contiguous float64 for the compiled path), in
+        place; returns it."""
+        if HAVE_NUMBA and points.flags.c_contiguous and points.dtype == np.float64:
+            _similarity_place(self._ref_all, self._rows, self._group, s, np.ascontiguousarray(rot),
+                              np.ascontiguousarray(t), points)
+            return points
         for i, (gv, ref) in enumerate(zip(self.groups, self.ref_points)):
             assign_rows(points, gv, s[i] * (ref @ rot[i]) + t[i])
         return points
