@@ -32,10 +32,7 @@ class FrameEvaluator:
         self.compiled = kernels.HAVE_NUMBA
         parts = plan.rigid_parts
         self._rigid = parts is not None and len(parts) > 0
-        free = np.ones(m, dtype=bool)
-        if self._rigid:
-            free[parts._rows] = False
-        self._free_rows = np.flatnonzero(free).astype(np.int64)
+        self._free_rows = np.flatnonzero(~plan.rigid_mask()).astype(np.int64)
         # the binding rows the rigid parts do not overwrite (same column layout)
         self._matrix = b._compact[self._free_rows]
         self._matrix.sort_indices()
