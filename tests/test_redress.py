@@ -368,3 +368,68 @@ def test_spread_corrections_on_a_flat_sheet():
     out2, spread2 = redress.spread_corrections(grid, grid, after, req, nb, fixed=fixed)
     np.testing.assert_allclose(out2[side], after[side])
     assert not spread2[side]
+
+
+def test_layer_gaps_keep_the_reference_relation_of_each_vertex():
+    """Two flat 8x8 sheets over a flat skin (z = 0): the inner one at 4 mm,
+    the outer one at 10 mm except for a patch that dips to 3 mm, under the
+    inner sheet, on the reference. The item-level order says outer over
+    inner by 5 mm; the per-vertex gaps keep the dip's own relation (-1 mm),
+    so the layer pass leaves the reference as it is, and on a target where
+    the outer sheet came 2 mm closer it lifts the sheet back to 5 mm over
+    the inner one, and the dip back to its own -1 mm (not to +5 mm)."""
+    import trimesh
+    box = trimesh.creation.box(extents=(0.5, 0.5, 0.2))
+    q = SurfaceQuery(np.asarray(box.faces), np.asarray(box.vertices) - [0, 0, 0.1])
+    grid, faces = _grid(n=8, step=0.01)
+    inner = grid + [0, 0, 0.004]
+    outer = grid + [0, 0, 0.010]
+    dip = (np.abs(grid[:, 0] - 0.035) < 0.012) & (np.abs(grid[:, 1] - 0.035) < 0.012)
+    outer[dip, 2] = 0.003
+    pts = np.concatenate([outer, inner])
+    offsets = np.array([0, len(grid), 2 * len(grid)])
+    items = [_mesh("outer", outer, faces), _mesh("inner", inner, faces)]
+    clear = q.signed_distance(pts)
+    order = redress.layer_order(items, offsets, pts, clear)
+    assert [(i, j) for i, j, _ in order] == [(0, 1)] and order[0][2] == pytest.approx(redress.LAYER_MIN_GAP)
+    layers = redress.layer_gaps(q, pts, offsets, order, clear)
+    gap = layers[0][2]
+    np.testing.assert_allclose(gap[dip], -0.001, atol=1e-9)
+    np.testing.assert_allclose(gap[~dip], redress.LAYER_MIN_GAP, atol=1e-9)
+    same, moved = redress.keep_layers(q, pts, offsets, layers)
+    assert not moved.any()
+    # the item-level separation alone would lift the dip 6 mm over the inner sheet
+    _, moved_item_level = redress.keep_layers(q, pts, offsets, order)
+    assert moved_item_level[:len(grid)][dip].all()
+    # target: the outer sheet 2 mm closer to the skin, the inner one where it was
+    tgt = pts.copy()
+    tgt[:len(grid), 2] -= 0.002
+    out, moved = redress.keep_layers(q, tgt, offsets, layers)
+    assert moved[:len(grid)].all() and not moved[len(grid):].any()
+    np.testing.assert_allclose(out[:len(grid)][~dip, 2], 0.004 + redress.LAYER_MIN_GAP, atol=1e-9)
+    np.testing.assert_allclose(out[:len(grid)][dip, 2], 0.004 - 0.001, atol=1e-9)
+
+
+def test_dressing_the_reference_onto_its_own_shape_gives_it_back(ref_male, ref_female, usd_dir):
+    """The CMU-rig body has ref_male's shape under other joint names: every
+    item comes back as authored (the suit's folds that dip into the body,
+    the trouser hem inside the shoe collar and the ponytail over the suit on
+    ref_female included: the penetration and layer passes keep the
+    reference's own relations). With ``push_inherited`` the suit's insets
+    are pushed out of the body instead (to 1 mm; the untangle pass keeps
+    them outside)."""
+    from wearfit_usd.usd_io import read_character
+    tgt = read_character(usd_dir / "body_male_cmu_rig.usdc")
+    res = redress.dress(ref_male, tgt)
+    assert not res.moved.any()
+    for a, b in zip(ref_male.items, res.items):
+        np.testing.assert_allclose(b.points, a.points, atol=1e-9, err_msg=a.name)
+    res_f = redress.dress(ref_female, ref_female, body_points=ref_female.body.points)
+    for a, b in zip(ref_female.items, res_f.items):
+        np.testing.assert_allclose(b.points, a.points, atol=1e-9, err_msg=a.name)
+    fixed = redress.dress(ref_male, tgt, push_inherited=True)
+    sl = fixed.plan.item_slices()[[m.name for m in ref_male.items].index("male_casualsuit01")]
+    inset = fixed.plan.ref_clearance[sl] < -0.001
+    q = SurfaceQuery(ref_male.body.faces, fixed.body_points)
+    assert inset.sum() > 50
+    assert q.signed_distance(fixed.points[sl][inset]).min() > 0.0

@@ -150,7 +150,10 @@ def layer_order(items: list[Mesh], offsets: np.ndarray, points: np.ndarray, clea
 def keep_layers(query: SurfaceQuery, pts: np.ndarray, offsets: np.ndarray, order: list,
                 radius: float = 0.02, mask: np.ndarray | None = None, footprints: dict | None = None):
     """Push outer-layer vertices out along the body normal until they clear
-    the item under them by the separation of :func:`layer_order`.
+    the item under them by the separation of :func:`layer_order`, or by the
+    per-vertex separation of :func:`layer_gaps` when an entry of ``order``
+    carries an array (one value per vertex of its outer item) instead of a
+    number.
 
     Both layers are compared over the same spot of the body: every vertex's
     closest body point is its footprint, and an outer vertex is checked
@@ -177,6 +180,8 @@ def keep_layers(query: SurfaceQuery, pts: np.ndarray, offsets: np.ndarray, order
         ij = np.arange(offsets[j], offsets[j + 1])
         d, k = cKDTree(foot[ij]).query(foot[oi], k=1, distance_upper_bound=radius)
         ok = np.isfinite(d)
+        if np.ndim(sep):
+            sep = np.asarray(sep)[oi[ok] - offsets[i]]
         need = sep - (c[oi[ok]] - c[ij[k[ok]]])
         np.maximum.at(push, oi[ok], np.where(need > 1e-4, need, 0.0))
     sel = np.flatnonzero(push > 0)
@@ -187,6 +192,37 @@ def keep_layers(query: SurfaceQuery, pts: np.ndarray, offsets: np.ndarray, order
     out[sel] += push[sel, None] * nn
     moved[sel] = True
     return out, moved
+
+
+def layer_gaps(query: SurfaceQuery, points: np.ndarray, offsets: np.ndarray, order: list,
+               clearance: np.ndarray, radius: float = 0.02) -> list:
+    """Per-vertex separations for :func:`keep_layers`, measured on the reference.
+
+    query: the reference body; points (M, 3): the reference items, stacked;
+    clearance (M,): their signed distances to that body (m); order: the
+    item-level [(outer, inner, separation)] of :func:`layer_order`.
+    Every vertex of an outer item keeps the item-level separation, or the gap
+    it had on the reference if that was smaller, measured the way
+    :func:`keep_layers` measures it (the inner vertex with the nearest
+    footprint within ``radius``): a trouser hem that lay 2 mm over, or
+    already inside, a shoe collar on the reference keeps that relation
+    instead of being lifted 5 mm over the collar. So the layer pass leaves
+    the reference unchanged on its own body.
+    Returns [(outer, inner, separation (n_outer,) m)].
+    """
+    if not order:
+        return []
+    foot = query.closest(points)["point"]
+    out = []
+    for i, j, sep in order:
+        oi = np.arange(offsets[i], offsets[i + 1])
+        ij = np.arange(offsets[j], offsets[j + 1])
+        d, k = cKDTree(foot[ij]).query(foot[oi], k=1, distance_upper_bound=radius)
+        ok = np.isfinite(d)
+        gap = np.full(len(oi), float(sep))
+        gap[ok] = np.minimum(sep, clearance[oi[ok]] - clearance[ij[k[ok]]])
+        out.append((i, j, gap))
+    return out
 
 
 LOOSE_START = 0.01   # m: vertices farther than this from the body start to be smoothed
@@ -461,7 +497,7 @@ class DressPlan:
     looseness: np.ndarray | None = None
     smoother: "LooseSmoother | None" = None
     bind_labels: np.ndarray | None = None   # (M,) regions used for binding (skirt parts: HIPS)
-    layers: list | None = None  # [(outer item, inner item, separation)]: :func:`layer_order`
+    layers: list | None = None  # [(outer item, inner item, separation (n_outer,) m)]: :func:`layer_gaps`
     item_faces: np.ndarray | None = None  # (F, 3) triangles of all items, stacked vertex indices
     item_edges: np.ndarray | None = None  # (E, 2) their unique edges
     timings: dict = field(default_factory=dict)
@@ -621,8 +657,9 @@ def plan(ref: Character, k: int = 5, use_regions: bool = True, rigid="auto",
     # clearance to keep = true signed distance to the reference body (the
     # offset along a bound triangle's plane extrapolates: on a bent foot a
     # rigid shoe's plane offsets reach tens of centimetres)
+    ref_query = SurfaceQuery(body.faces, body.points)
     if ref_clearance is None:
-        ref_clear = SurfaceQuery(body.faces, body.points).signed_distance(pts)
+        ref_clear = ref_query.signed_distance(pts)
     else:
         if len(ref_clearance) != len(pts):
             raise ValueError(f"ref_clearance has {len(ref_clearance)} entries for {len(pts)} item vertices")
@@ -679,8 +716,10 @@ def plan(ref: Character, k: int = 5, use_regions: bool = True, rigid="auto",
                      rigid_items=rigid_items, skirt_items=skirts, neighbours=neighbours,
                      looseness=loose, smoother=LooseSmoother(neighbours, loose),
                      bind_labels=region_labels,
-                     layers=[(i, j, g) for i, j, g in layer_order(items, offsets, pts, ref_clear)
-                             if items[i].name not in rigid_items],  # rigid parts move as a whole
+                     layers=layer_gaps(ref_query, pts, offsets,
+                                       [(i, j, g) for i, j, g in layer_order(items, offsets, pts, ref_clear)
+                                        if items[i].name not in rigid_items],  # rigid parts move as a whole
+                                       ref_clear),
                      ref_body=body.points, item_faces=item_faces, item_edges=edges(item_faces),
                      timings={"regions_s": t1 - t0, "bind_s": t2 - t1, "plan_rest_s": t3 - t2})
 
@@ -698,16 +737,21 @@ class DressResult:
 
 def apply(plan_: DressPlan, body_points: np.ndarray, body_faces: np.ndarray,
           penetration: bool = True, query: SurfaceQuery | None = None, margin: float = 0.003,
-          near_other: float = 0.03, push_inherited: bool = True, inherited_clearance: float = 0.001,
+          near_other: float = 0.03, push_inherited: bool = False, inherited_clearance: float = 0.001,
           untangle: bool = True, spread: bool = True):
     """Evaluate a plan on fitted body points (reference topology).
 
-    Vertices that end inside the body are pushed out to their reference
-    clearance; those that were inside the reference body already (a flaw of
-    the asset, e.g. a tight suit fitted by MakeHuman, which hides the skin
-    under clothes instead) by more than ``inherited_clearance`` are pushed out
-    to that clearance, unless ``push_inherited`` is False; vertices of rigid
-    groups keep such authored insets (they move as a whole).
+    Vertices that end inside the body but were outside the reference body
+    are pushed out to their reference clearance. Those that were inside the
+    reference body already keep their (negative) reference clearance, as
+    every other vertex does: dressing the reference onto its own shape gives
+    the reference back. With ``push_inherited`` the ones deeper than
+    ``inherited_clearance`` are pushed out to that clearance instead (a flaw
+    of the asset, e.g. a tight suit fitted by MakeHuman, which hides the skin
+    under clothes with ``delete_verts``: the skin would show through); this
+    repair flattens folds that dip into the body and so shortens their
+    edges. Vertices of rigid groups always keep such authored insets (they
+    move as a whole).
 
     spread: the penetration and layer passes move single vertices; spread
     their corrections smoothly over the item mesh (:func:`spread_corrections`,
@@ -929,7 +973,7 @@ def dress(ref: Character, target: Character, k: int = 5, use_regions: bool = Tru
           rigid="auto", penetration: bool = True, body_points: np.ndarray | None = None,
           strict_far: bool = False, bind_labels: np.ndarray | None = None,
           skirt_items: list[str] | None = None, ref_clearance: np.ndarray | None = None,
-          push_inherited: bool = True, untangle: bool = True,
+          push_inherited: bool = False, untangle: bool = True,
           prepared: DressPlan | None = None) -> DressResult:
     """Put every item of ``ref`` on ``target``'s body (internal space).
     ``bind_labels``/``skirt_items``/``ref_clearance``: see :func:`plan`;

@@ -24,9 +24,11 @@ def register(sub, common):
     p.add_argument("--no-regions", action="store_true",
                    help="do not restrict bindings to one body region (legs/arms/torso/head)")
     p.add_argument("--no-push-out", action="store_true", help="skip the penetration pass")
-    p.add_argument("--keep-reference-penetrations", action="store_true",
-                   help="leave item vertices that were already inside the reference body inside "
-                        "(default: pushed out to 1 mm, so no skin shows through)")
+    p.add_argument("--fix-reference-penetrations", action="store_true",
+                   help="push item vertices that were already more than 1 mm inside the reference body "
+                        "out to 1 mm, so no skin shows through (default: they keep their reference "
+                        "clearance, as every other vertex; the repair shortens the edges of folds that "
+                        "dipped into the body)")
     p.add_argument("--report", default=None, metavar="FILE.json",
                    help="write per-item fit figures (new penetrations, clearance change, flipped "
                         "triangles, over-stretched edges) and timings as JSON")
@@ -62,7 +64,7 @@ def run(args) -> int:
                                        f"{[m.name for m in ref.items]}")
     res = dress(ref, target, k=args.k, use_regions=not args.no_regions, rigid=rigid,
                 penetration=not args.no_push_out, strict_far=args.strict,
-                push_inherited=not args.keep_reference_penetrations)
+                push_inherited=args.fix_reference_penetrations)
     write_character(out, target, items=res.items)
     t = res.timings
     if args.report:
