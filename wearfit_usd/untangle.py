@@ -29,8 +29,8 @@ import numpy as np
 import scipy.sparse as sp
 
 FLIP_COS = 0.0     # a triangle is folded when its normal and the expected one make > 90 degrees
-STRETCH_LO = 0.8   # edge length / expected edge length below this: over-compressed
-STRETCH_HI = 1.25  # ... above this: over-stretched
+STRETCH_LO = 0.85  # edge length / expected edge length below this: over-compressed
+STRETCH_HI = 1.2   # ... above this: over-stretched
 
 
 def triangle_gradients(ref_body: np.ndarray, fit_body: np.ndarray, faces: np.ndarray) -> np.ndarray:
