@@ -70,7 +70,7 @@ def run(full: bool, out_dir: Path) -> list[dict]:
     from wearfit_usd.metrics import clearance_change, item_rigid_groups, shape_change
     from wearfit_usd.mhclo import fit as mh_fit, shape_points, to_internal
     from wearfit_usd.binding import bind
-    from wearfit_usd.redress import apply, fitted_body_points, plan
+    from wearfit_usd.redress import apply, fitted_body_points, plan, release_misfits
     from wearfit_usd.usd_io import read_character
 
     usd = DATA / "usd"
@@ -99,7 +99,10 @@ def run(full: bool, out_dir: Path) -> list[dict]:
             except Exception as exc:  # other topology without body_fit
                 rows.append({**base, "item": "*", "error": str(exc).split(": ", 1)[-1][:90]})
                 continue
-            pts, free, moved, tm = apply(pl, body, ref.body.faces)
+            # as redress.dress: rigid parts that do not fit this body move freely
+            qb = SurfaceQuery(ref.body.faces, body)
+            pl_t, released = release_misfits(pl, body, qb)
+            pts, free, moved, tm = apply(pl_t, body, ref.body.faces, query=qb)
             pts_k1 = wrap.evaluate(body)
             qt = SurfaceQuery(tgt.body.faces, tgt.body.points)
             mh_items = []
@@ -117,9 +120,9 @@ def run(full: bool, out_dir: Path) -> list[dict]:
                 dr, dt = ref_d[i], qt.signed_distance(p)
                 sc = shape_change(item.points, p, item.faces, pl.binding.triangles[sl], pl.binding.weights[sl],
                                   ref.body.points, body, ref.body.faces, dr,
-                                  rigid_groups=item_rigid_groups(pl, sl))
+                                  rigid_groups=item_rigid_groups(pl_t, sl))
                 row = {**base, "item": item.name, "verts": item.n_points,
-                       "rigid": item.name in pl.rigid_items,
+                       "rigid": item.name in pl_t.rigid_items, "released": item.name in released,
                        **{k: round(v, 3) for k, v in clearance_change(dr, dt).items()},
                        "flipped_pct": round(sc["flipped_pct"], 3),
                        "flipped_strict_pct": round(sc["flipped_strict_pct"], 3),
