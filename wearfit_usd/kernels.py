@@ -48,21 +48,24 @@ prange = numba.prange if HAVE_NUMBA else range
 # ----------------------------------------------------------------------------
 # binding evaluation
 
+def _row_times3(indptr, indices, data, x, r):
+    """(3,) as a tuple: row r of A in CSR times x (K, 3)."""
+    sx = 0.0
+    sy = 0.0
+    sz = 0.0
+    for j in range(indptr[r], indptr[r + 1]):
+        c = indices[j]
+        w = data[j]
+        sx += w * x[c, 0]
+        sy += w * x[c, 1]
+        sz += w * x[c, 2]
+    return sx, sy, sz
+
+
 def _csr_times_rows3(indptr, indices, data, x, out):
     """out (M, 3) = A @ x for A in CSR (M rows) and x (K, 3)."""
     for r in range(len(indptr) - 1):
-        sx = 0.0
-        sy = 0.0
-        sz = 0.0
-        for j in range(indptr[r], indptr[r + 1]):
-            c = indices[j]
-            w = data[j]
-            sx += w * x[c, 0]
-            sy += w * x[c, 1]
-            sz += w * x[c, 2]
-        out[r, 0] = sx
-        out[r, 1] = sy
-        out[r, 2] = sz
+        out[r, 0], out[r, 1], out[r, 2] = _row_times3(indptr, indices, data, x, r)
 
 
 def _fill_stacked(points, used_faces, buf):
@@ -94,19 +97,8 @@ def _binding_eval_rows(points, used_faces, indptr, indices, data, rows, buf, out
     untouched)."""
     _fill_stacked(points, used_faces, buf)
     for r in range(len(indptr) - 1):
-        sx = 0.0
-        sy = 0.0
-        sz = 0.0
-        for j in range(indptr[r], indptr[r + 1]):
-            c = indices[j]
-            w = data[j]
-            sx += w * buf[c, 0]
-            sy += w * buf[c, 1]
-            sz += w * buf[c, 2]
         o = rows[r]
-        out[o, 0] = sx
-        out[o, 1] = sy
-        out[o, 2] = sz
+        out[o, 0], out[o, 1], out[o, 2] = _row_times3(indptr, indices, data, buf, r)
 
 
 def _similarity_place(ref, rows, group, s, rot, t, out):
@@ -132,29 +124,9 @@ def _similarity_transforms(points, mean_ptr, mean_idx, mean_w, cov_ptr, cov_idx,
     (G, 3, 3) (row vectors) and t_out (G, 3); scale False: s = 1."""
     h = np.empty((3, 3))
     for g in range(src_mean.shape[0]):
-        mx = 0.0
-        my = 0.0
-        mz = 0.0
-        for j in range(mean_ptr[g], mean_ptr[g + 1]):
-            v = mean_idx[j]
-            w = mean_w[j]
-            mx += w * points[v, 0]
-            my += w * points[v, 1]
-            mz += w * points[v, 2]
+        mx, my, mz = _row_times3(mean_ptr, mean_idx, mean_w, points, g)
         for r in range(3):
-            row = 3 * g + r
-            hx = 0.0
-            hy = 0.0
-            hz = 0.0
-            for j in range(cov_ptr[row], cov_ptr[row + 1]):
-                v = cov_idx[j]
-                w = cov_w[j]
-                hx += w * points[v, 0]
-                hy += w * points[v, 1]
-                hz += w * points[v, 2]
-            h[r, 0] = hx
-            h[r, 1] = hy
-            h[r, 2] = hz
+            h[r, 0], h[r, 1], h[r, 2] = _row_times3(cov_ptr, cov_idx, cov_w, points, 3 * g + r)
         u, sv, vt = np.linalg.svd(h)
         d = 1.0 if np.linalg.det(u @ vt) >= 0 else -1.0
         if d < 0:
@@ -203,6 +175,7 @@ def _add_rows(out, rows, base, delta):
 
 
 if HAVE_NUMBA:
+    _row_times3 = _jit(_row_times3, inline=True)
     _csr_times_rows3 = _jit(_csr_times_rows3)
     _fill_stacked = _jit(_fill_stacked)
     _binding_eval_jit = _jit(_binding_eval)
