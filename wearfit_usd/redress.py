@@ -147,6 +147,17 @@ def layer_order(items: list[Mesh], offsets: np.ndarray, points: np.ndarray, clea
     return order
 
 
+def _under(foot: np.ndarray, offsets: np.ndarray, j: int, oi: np.ndarray, radius: float):
+    """The vertex of item ``j`` over the same spot of the body as each outer
+    vertex ``oi`` (stacked indices): the one whose footprint (closest body
+    point, foot (M, 3)) is nearest, if within ``radius``. Returns (found
+    (len(oi),) bool, stacked indices of those found)."""
+    ij = np.arange(offsets[j], offsets[j + 1])
+    d, k = cKDTree(foot[ij]).query(foot[oi], k=1, distance_upper_bound=radius)
+    ok = np.isfinite(d)
+    return ok, ij[k[ok]]
+
+
 def keep_layers(query: SurfaceQuery, pts: np.ndarray, offsets: np.ndarray, order: list,
                 radius: float = 0.02, mask: np.ndarray | None = None, footprints: dict | None = None):
     """Push outer-layer vertices out along the body normal until they clear
@@ -177,12 +188,10 @@ def keep_layers(query: SurfaceQuery, pts: np.ndarray, offsets: np.ndarray, order
             oi = oi[mask[oi]]
             if len(oi) == 0:
                 continue
-        ij = np.arange(offsets[j], offsets[j + 1])
-        d, k = cKDTree(foot[ij]).query(foot[oi], k=1, distance_upper_bound=radius)
-        ok = np.isfinite(d)
+        ok, under = _under(foot, offsets, j, oi, radius)
         if np.ndim(sep):
             sep = np.asarray(sep)[oi[ok] - offsets[i]]
-        need = sep - (c[oi[ok]] - c[ij[k[ok]]])
+        need = sep - (c[oi[ok]] - c[under])
         np.maximum.at(push, oi[ok], np.where(need > 1e-4, need, 0.0))
     sel = np.flatnonzero(push > 0)
     if len(sel) == 0:
@@ -216,11 +225,9 @@ def layer_gaps(query: SurfaceQuery, points: np.ndarray, offsets: np.ndarray, ord
     out = []
     for i, j, sep in order:
         oi = np.arange(offsets[i], offsets[i + 1])
-        ij = np.arange(offsets[j], offsets[j + 1])
-        d, k = cKDTree(foot[ij]).query(foot[oi], k=1, distance_upper_bound=radius)
-        ok = np.isfinite(d)
+        ok, under = _under(foot, offsets, j, oi, radius)
         gap = np.full(len(oi), float(sep))
-        gap[ok] = np.minimum(sep, clearance[oi[ok]] - clearance[ij[k[ok]]])
+        gap[ok] = np.minimum(sep, clearance[oi[ok]] - clearance[under])
         out.append((i, j, gap))
     return out
 
@@ -475,18 +482,20 @@ def release_misfits(plan_: "DressPlan", body_points: np.ndarray, query: SurfaceQ
     s, rot, t = parts.transforms(body_points)
     pts = np.array(plan_.ref_points, dtype=np.float64, copy=True)
     parts.place(s, rot, t, pts)
-    keep, released = [], []
-    for group, gv in zip(plan_.rigid_groups, parts.groups):
-        rc = plan_.ref_clearance[gv]
-        d = query.signed_distance(pts[gv])
-        if np.mean((rc > 0) & (d < -depth)) > fraction:
-            released.append(int(np.searchsorted(plan_.offsets, gv[0], side="right") - 1))
-        else:
-            keep.append(group)
-    if not released:
+    rows = np.concatenate(parts.groups)
+    depth_new = np.zeros(len(pts))
+    depth_new[rows] = -query.signed_distance(pts[rows])
+    new_in = (plan_.ref_clearance > 0) & (depth_new > depth)
+    fits = [np.mean(new_in[gv]) <= fraction for gv in parts.groups]
+    if all(fits):
         return plan_, []
-    names = sorted({plan_.items[i].name for i in released})
-    still = {plan_.items[int(np.searchsorted(plan_.offsets, g[0][0], side="right") - 1)].name for g in keep}
+
+    def item_name(gv):
+        return plan_.items[int(np.searchsorted(plan_.offsets, gv[0], side="right") - 1)].name
+
+    still = {item_name(gv) for gv, ok in zip(parts.groups, fits) if ok}
+    names = sorted({item_name(gv) for gv, ok in zip(parts.groups, fits) if not ok})
+    keep = [group for group, ok in zip(plan_.rigid_groups, fits) if ok]
     return replace(plan_, rigid_groups=keep, rigid_items=[n for n in plan_.rigid_items if n in still]), names
 
 
