@@ -70,7 +70,7 @@ def run(full: bool, out_dir: Path) -> list[dict]:
     from wearfit_usd.metrics import clearance_change, item_rigid_groups, shape_change
     from wearfit_usd.mhclo import fit as mh_fit, shape_points, to_internal
     from wearfit_usd.binding import bind
-    from wearfit_usd.redress import apply, fitted_body_points, plan, release_misfits
+    from wearfit_usd.redress import dress, fitted_body_points, plan
     from wearfit_usd.usd_io import read_character
 
     usd = DATA / "usd"
@@ -99,10 +99,11 @@ def run(full: bool, out_dir: Path) -> list[dict]:
             except Exception as exc:  # other topology without body_fit
                 rows.append({**base, "item": "*", "error": str(exc).split(": ", 1)[-1][:90]})
                 continue
-            # as redress.dress: rigid parts that do not fit this body move freely
-            qb = SurfaceQuery(ref.body.faces, body)
-            pl_t, released = release_misfits(pl, body, qb)
-            pts, free, moved, tm = apply(pl_t, body, ref.body.faces, query=qb)
+            # the reference's plan, made once, on this fitted body (rigid parts
+            # that do not fit it are released: res.plan)
+            res = dress(ref, tgt, body_points=body, prepared=pl)
+            pl_t, pts, moved, tm = res.plan, res.points, res.moved, res.timings
+            released = [n for n in pl.rigid_items if n not in pl_t.rigid_items]
             pts_k1 = wrap.evaluate(body)
             qt = SurfaceQuery(tgt.body.faces, tgt.body.points)
             mh_items = []
