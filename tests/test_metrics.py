@@ -157,3 +157,42 @@ def test_rigid_and_free_edges_counted_apart():
     r = M.shape_change(item, new, faces, b.triangles, b.weights, body, body, bf, rigid_groups=[np.arange(8)])
     assert r["rigid_edges"] == 18 and r["overstretch_rigid_pct"] == 0.0
     assert r["overstretch_pct"] == 100.0 and len(r["overstretched"]) == 18
+
+
+def test_principal_stretches_of_a_known_map():
+    """A stretch by 2 along (1, -1) (and 1 across): the principal stretches
+    are (1, 2) on every triangle, although no triangle edge of the plate
+    (along x, y and (1, 1)) stretches by more than 1.58."""
+    body, bf = _plate()
+    u = np.array([1.0, -1.0, 0.0]) / np.sqrt(2.0)
+    a = np.eye(3) + np.outer(u, u)
+    lo, hi = M.principal_stretches(body, body @ a.T, bf)
+    np.testing.assert_allclose(lo, 1.0, atol=1e-12)
+    np.testing.assert_allclose(hi, 2.0, atol=1e-12)
+    e = np.concatenate([bf[:, [0, 1]], bf[:, [1, 2]], bf[:, [2, 0]]])
+    d = body[e[:, 1]] - body[e[:, 0]]
+    assert (np.linalg.norm(d @ a.T, axis=1) / np.linalg.norm(d, axis=1)).max() < 1.6
+    # a degenerate reference triangle gets (1, 1)
+    lo, hi = M.principal_stretches(np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0.0]]), np.eye(3), np.array([[0, 1, 2]]))
+    assert lo[0] == 1.0 and hi[0] == 1.0
+
+
+def test_item_edge_along_the_skins_greatest_stretch_is_within_it():
+    """An item triangle 5 mm over the plate with an edge along (1, -1), the
+    direction the plate stretches by 2: carried by the same map, that edge
+    stretches by 2, more than 1.25 x any plate edge's ratio (1.58) but
+    within the plate's own stretch, so it is not flagged; stretched by 2.6
+    (beyond 1.25 x 2) it is."""
+    body, bf = _plate()
+    u = np.array([1.0, -1.0, 0.0]) / np.sqrt(2.0)
+    a = np.eye(3) + np.outer(u, u)
+    item = np.array([[-0.01, 0.01, 0.005], [0.01, -0.01, 0.005], [0.01, 0.01, 0.005]])
+    faces = np.array([[0, 1, 2]])
+    new = item @ a.T
+    r = _shape(item, new, faces, body, body @ a.T, bf)
+    assert r["overstretch_pct"] == 0.0 and r["flipped_pct"] == 0.0
+    far = new.copy()
+    far[1] = far[0] + 1.3 * (new[1] - new[0])  # the (1, -1) edge at 2.6 x
+    r = _shape(item, far, faces, body, body @ a.T, bf)
+    e = np.flatnonzero(r["overstretched"] == 0)  # edge (0, 1) is the first of redress.edges
+    assert len(e) == 1

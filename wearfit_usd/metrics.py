@@ -104,6 +104,49 @@ def _offset_factor(ref_body, fit_body, body_faces, tri, bary, clearance, e, edge
     return np.where(apart & (a > 0.5) & (b > 0.5), b / np.maximum(a, 0.5), 1.0)
 
 
+def principal_stretches(ref_body: np.ndarray, fit_body: np.ndarray, faces: np.ndarray):
+    """(smallest (T,), largest (T,)) principal stretch of every triangle
+    (T, 3) from ref_body to fit_body (N, 3): the extremes of the length ratio
+    of a segment in the triangle over all its directions (the singular
+    values of the in-plane deformation); its three edges' ratios lie in
+    between. Degenerate reference triangles get (1, 1)."""
+    def gram(p):
+        e1 = p[faces[:, 1]] - p[faces[:, 0]]
+        e2 = p[faces[:, 2]] - p[faces[:, 0]]
+        return (np.einsum("ij,ij->i", e1, e1), np.einsum("ij,ij->i", e1, e2), np.einsum("ij,ij->i", e2, e2))
+    a, b, c = gram(np.asarray(ref_body, dtype=np.float64))
+    d, e, f = gram(np.asarray(fit_body, dtype=np.float64))
+    det = a * c - b * b
+    ok = det > 1e-12 * np.maximum(a * c, 1e-300)
+    det = np.where(ok, det, 1.0)
+    # eigenvalues of G_ref^-1 G_fit (2 x 2): the squared principal stretches
+    tr = (c * d - 2 * b * e + a * f) / det
+    dt = (d * f - e * e) / det
+    disc = np.sqrt(np.maximum(0.25 * tr * tr - dt, 0.0))
+    hi = np.sqrt(np.maximum(0.5 * tr + disc, 0.0))
+    lo = np.sqrt(np.maximum(0.5 * tr - disc, 0.0))
+    return np.where(ok, lo, 1.0), np.where(ok, hi, 1.0)
+
+
+def stretch_range(ref_pts: np.ndarray, e: np.ndarray, triangles: np.ndarray, ref_body: np.ndarray,
+                  fit_body: np.ndarray, body_faces: np.ndarray, tri: np.ndarray, bary: np.ndarray,
+                  ref_clearance: np.ndarray):
+    """The body's own local stretch range for item edges e (E, 2): (lo (E,),
+    hi (E,)) edge-length ratios (new / reference), see :func:`shape_change`.
+
+    ref_pts (M, 3) item on the reference, triangles (M, K) its bound body
+    triangles, ref_body/fit_body (N, 3) with body_faces (T, 3), tri (M,) and
+    bary (M, 3) each item vertex's closest reference skin point,
+    ref_clearance (M,) its signed clearance (m)."""
+    tmin, tmax = principal_stretches(ref_body, fit_body, body_faces)
+    t2 = np.concatenate([triangles[e[:, 0]], triangles[e[:, 1]]], axis=1)  # (E, 2K)
+    smin, smax = tmin[t2].min(axis=1), tmax[t2].max(axis=1)
+    le_r = np.linalg.norm(ref_pts[e[:, 1]] - ref_pts[e[:, 0]], axis=1)
+    fac = _offset_factor(ref_body, fit_body, body_faces, tri, bary,
+                         np.asarray(ref_clearance, dtype=np.float64), e, le_r)
+    return np.minimum(smin, smin * fac), np.maximum(smax, smax * fac)
+
+
 def shape_change(ref_pts: np.ndarray, new_pts: np.ndarray, faces: np.ndarray, triangles: np.ndarray,
                  weights: np.ndarray, ref_body: np.ndarray, fit_body: np.ndarray, body_faces: np.ndarray,
                  ref_clearance: np.ndarray | None = None, tri0: np.ndarray | None = None,
@@ -136,8 +179,12 @@ def shape_change(ref_pts: np.ndarray, new_pts: np.ndarray, faces: np.ndarray, tr
 
     Over-stretched (``overstretch_pct``): an item edge's length ratio
     (new / reference) leaves [0.8, 1.25] x the body's own local stretch,
-    the range of edge-length ratios of every body triangle either endpoint
-    is bound to (2K triangles, 3 edges each), widened by the offset factor
+    the range of stretch, over all directions, of every body triangle
+    either endpoint is bound to (2K triangles: from the smallest to the
+    largest principal stretch, :func:`principal_stretches`; a triangle's
+    three edges sample only three directions of it, and an item edge along
+    the skin's direction of greatest stretch - across a raised arm's
+    armpit - legitimately stretches more than any of them), widened by the offset factor
     of the item's clearance: an offset surface at clearance c over skin of
     normal curvature k along the edge is ``1 + c k`` times as long as the
     skin, so where the target's skin bends more or less the item legitimately
@@ -194,26 +241,16 @@ def shape_change(ref_pts: np.ndarray, new_pts: np.ndarray, faces: np.ndarray, tr
     flipped = (np.einsum("fi,fi->f", n_exp, n_new) < 0) & area_ok
     degenerate = min_angle_deg(ref_pts, faces) < DEGENERATE_MIN_ANGLE
     counted = area_ok & ~degenerate
-    # body stretch range over the 2K triangles bound to the edge's endpoints
-    bf = body_faces
-    lr = np.stack([np.linalg.norm(ref_body[bf[:, i]] - ref_body[bf[:, (i + 1) % 3]], axis=1) for i in range(3)], 1)
-    lf = np.stack([np.linalg.norm(fit_body[bf[:, i]] - fit_body[bf[:, (i + 1) % 3]], axis=1) for i in range(3)], 1)
-    br = lf / np.maximum(lr, 1e-12)
-    tmin, tmax = br.min(axis=1), br.max(axis=1)
-    e = edges(faces)
-    t2 = np.concatenate([triangles[e[:, 0]], triangles[e[:, 1]]], axis=1)  # (E, 2K)
-    smin, smax = tmin[t2].min(axis=1), tmax[t2].max(axis=1)
     qr = SurfaceQuery(body_faces, ref_body)
     res = qr.closest(ref_pts)
     if ref_clearance is None:
         ref_clearance = res["distance"]
+    e = edges(faces)
+    lo, hi = stretch_range(ref_pts, e, triangles, ref_body, fit_body, body_faces,
+                           res["triangle"], res["bary"], ref_clearance)
     le_r = np.linalg.norm(ref_pts[e[:, 1]] - ref_pts[e[:, 0]], axis=1)
     lt = np.linalg.norm(new_pts[e[:, 1]] - new_pts[e[:, 0]], axis=1)
     ratio = lt / np.maximum(le_r, 1e-12)
-    fac = _offset_factor(ref_body, fit_body, body_faces, res["triangle"], res["bary"],
-                         np.asarray(ref_clearance, dtype=np.float64), e, le_r)
-    lo = np.minimum(smin, smin * fac)
-    hi = np.maximum(smax, smax * fac)
     over = (ratio < 0.8 * lo) | (ratio > 1.25 * hi)
     rig = rigid_edge_check(ref_pts, new_pts, e, ratio, rigid_groups)
     free = ~rig["rigid"]
