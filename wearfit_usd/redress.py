@@ -1001,13 +1001,21 @@ def untangle_items(plan_: DressPlan, body_points: np.ndarray, pts: np.ndarray, q
     # vertices, the dressing metric) grows by more than
     # UNTANGLE_CLEARANCE_DRIFT keeps its redress (a thin closed tube such as
     # a necklace, freed as a whole, can otherwise slide around the neck)
+    # (one query over the touched items before, one over the touched
+    # vertices after: the others kept their clearance)
     kept = []
-    for item, a, b in zip(plan_.items, plan_.offsets[:-1], plan_.offsets[1:]):
-        if not touched[a:b].any():
-            continue
+    spans = [(item, a, b) for item, a, b in zip(plan_.items, plan_.offsets[:-1], plan_.offsets[1:])
+             if touched[a:b].any()]
+    rows = np.concatenate([np.arange(a, b) for _, a, b in spans]) if spans else np.zeros(0, dtype=np.int64)
+    d_before = np.zeros(len(pts))
+    d_before[rows] = query.closest(pts[rows], ring=False)["distance"]
+    d_after = d_before.copy()
+    tv = np.flatnonzero(touched)
+    d_after[tv] = query.closest(new[tv], ring=False)["distance"]
+    for item, a, b in spans:
         ref_c = plan_.ref_clearance[a:b]
-        err_before = np.median(np.abs(query.closest(pts[a:b], ring=False)["distance"] - ref_c))
-        err_after = np.median(np.abs(query.closest(new[a:b], ring=False)["distance"] - ref_c))
+        err_before = np.median(np.abs(d_before[a:b] - ref_c))
+        err_after = np.median(np.abs(d_after[a:b] - ref_c))
         if err_after > err_before + UNTANGLE_CLEARANCE_DRIFT:
             new[a:b] = pts[a:b]
             touched[a:b] = False
