@@ -180,12 +180,26 @@ def bad_elements(ref_pts: np.ndarray, pts: np.ndarray, faces: np.ndarray, edges:
     [lo, hi] x its expected length (:func:`edge_targets`).
     Returns (folded (F,) bool, bad edges (E,) bool).
     """
-    folded = _folded(expected_normals(ref_pts, faces, grad), pts, faces)
-    g = np.linalg.norm(edge_targets(ref_pts, grad, edges), axis=1)
-    ln = np.linalg.norm(pts[edges[:, 1]] - pts[edges[:, 0]], axis=1)
-    ratio = ln / np.maximum(g, 1e-12)
-    bad = ((ratio < lo) | (ratio > hi)) & (g > 1e-9)
-    return folded, bad
+    return _BadElements(ref_pts, faces, edges, grad, lo, hi)(pts)
+
+
+class _BadElements:
+    """:func:`bad_elements` for one item set and gradient field, with the
+    expected normals and edge lengths (which do not depend on the current
+    points) computed once."""
+
+    def __init__(self, ref_pts, faces, edges, grad, lo=STRETCH_LO, hi=STRETCH_HI):
+        self.faces, self.edges, self.lo, self.hi = faces, edges, lo, hi
+        self.n_exp = expected_normals(ref_pts, faces, grad)
+        self.g = np.linalg.norm(edge_targets(ref_pts, grad, edges), axis=1)
+
+    def __call__(self, pts):
+        e = self.edges
+        folded = _folded(self.n_exp, pts, self.faces)
+        ln = np.linalg.norm(pts[e[:, 1]] - pts[e[:, 0]], axis=1)
+        ratio = ln / np.maximum(self.g, 1e-12)
+        bad = ((ratio < self.lo) | (ratio > self.hi)) & (self.g > 1e-9)
+        return folded, bad
 
 
 def dilate(seed: np.ndarray, neighbours: sp.csr_matrix, rings: int) -> np.ndarray:
@@ -301,8 +315,9 @@ def untangle(ref_pts: np.ndarray, pts: np.ndarray, faces: np.ndarray, edges: np.
     stats = {"solves": 0}
     anchored = np.zeros(len(pts), dtype=bool)
     anchor_pos = pts.copy()
+    detect = _BadElements(ref_pts, faces, edges, grad)
     for it in range(iterations):
-        folded, bad = bad_elements(ref_pts, pts, faces, edges, grad)
+        folded, bad = detect(pts)
         if it == 0:
             stats["folded_before"], stats["bad_edges_before"] = int(folded.sum()), int(bad.sum())
         seed = np.zeros(len(pts), dtype=bool)
@@ -323,6 +338,6 @@ def untangle(ref_pts: np.ndarray, pts: np.ndarray, faces: np.ndarray, edges: np.
             anchored |= moved
             anchor_pos[moved] = fixed[moved]
         pts = fixed
-    folded, bad = bad_elements(ref_pts, pts, faces, edges, grad)
+    folded, bad = detect(pts)
     stats["folded_after"], stats["bad_edges_after"] = int(folded.sum()), int(bad.sum())
     return pts, touched, stats
