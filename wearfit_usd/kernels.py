@@ -202,18 +202,16 @@ def binding_eval(points: np.ndarray, used_faces: np.ndarray, matrix, buf: np.nda
 # ----------------------------------------------------------------------------
 # triangle normals
 
+def _corner_edges(points, a, b, c):
+    """The two edges b - a and c - a leaving corner a, as six scalars."""
+    return (points[b, 0] - points[a, 0], points[b, 1] - points[a, 1], points[b, 2] - points[a, 2],
+            points[c, 0] - points[a, 0], points[c, 1] - points[a, 1], points[c, 2] - points[a, 2])
+
+
 def _face_cross(points, faces, f):
     """(b - a) x (c - a) of triangle f = (a, b, c): its normal, twice the
     area long."""
-    i0 = faces[f, 0]
-    i1 = faces[f, 1]
-    i2 = faces[f, 2]
-    ax = points[i1, 0] - points[i0, 0]
-    ay = points[i1, 1] - points[i0, 1]
-    az = points[i1, 2] - points[i0, 2]
-    bx = points[i2, 0] - points[i0, 0]
-    by = points[i2, 1] - points[i0, 1]
-    bz = points[i2, 2] - points[i0, 2]
+    ax, ay, az, bx, by, bz = _corner_edges(points, faces[f, 0], faces[f, 1], faces[f, 2])
     return ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
 
 
@@ -252,6 +250,7 @@ def _vertex_normals(points, faces, out):
 
 
 if HAVE_NUMBA:
+    _corner_edges = _jit(_corner_edges, inline=True)
     _face_cross = _jit(_face_cross, inline=True)
     _face_normals = _jit(_face_normals)
     _vertex_normals = _jit(_vertex_normals)
@@ -632,15 +631,8 @@ def _vertex_pseudo_normal(v, points, faces, ring, face_n):
         for c in range(3):
             if faces[f, c] != v:
                 continue
-            a = faces[f, c]
-            b = faces[f, (c + 1) % 3]
-            d = faces[f, (c + 2) % 3]
-            e1x = points[b, 0] - points[a, 0]
-            e1y = points[b, 1] - points[a, 1]
-            e1z = points[b, 2] - points[a, 2]
-            e2x = points[d, 0] - points[a, 0]
-            e2y = points[d, 1] - points[a, 1]
-            e2z = points[d, 2] - points[a, 2]
+            e1x, e1y, e1z, e2x, e2y, e2z = _corner_edges(points, faces[f, c], faces[f, (c + 1) % 3],
+                                                         faces[f, (c + 2) % 3])
             ln = np.sqrt(e1x * e1x + e1y * e1y + e1z * e1z) * np.sqrt(e2x * e2x + e2y * e2y + e2z * e2z)
             cosang = (e1x * e2x + e1y * e2y + e1z * e2z) / max(ln, 1e-300)
             ang = np.arccos(min(max(cosang, -1.0), 1.0))
