@@ -294,9 +294,9 @@ def test_lift_folds_moves_a_folded_patch_as_a_whole():
     changed = np.zeros(len(grid), bool)
     changed[mid] = True
     n_exp = U.expected_normals(grid, faces, grad)
-    assert U._folded(n_exp, after, faces).sum() >= 2
+    assert U.folded_triangles(n_exp, after, faces).sum() >= 2
     out, lifted = U.lift_folds(grid, before, after, faces, grad, changed)
-    assert not U._folded(n_exp, out, faces).any()
+    assert not U.folded_triangles(n_exp, out, faces).any()
     u = (after[mid] - before[mid]) / np.linalg.norm(after[mid] - before[mid])
     assert (out[mid] - before[mid]) @ u >= np.linalg.norm(after[mid] - before[mid]) - 1e-12
     assert lifted[mid] and not lifted.all()

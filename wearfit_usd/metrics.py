@@ -235,10 +235,8 @@ def shape_change(ref_pts: np.ndarray, new_pts: np.ndarray, faces: np.ndarray, tr
     tg[used] = U.triangle_gradients(ref_body, fit_body, body_faces[used])
     grad = U.vertex_gradients(tg, triangles, weights)
     n_exp = U.expected_normals(ref_pts, faces, grad)
-    p0 = new_pts[faces[:, 0]]
-    n_new = np.cross(new_pts[faces[:, 1]] - p0, new_pts[faces[:, 2]] - p0)
     area_ok = np.linalg.norm(n_exp, axis=1) > 0
-    flipped = (np.einsum("fi,fi->f", n_exp, n_new) < 0) & area_ok
+    flipped = U.folded_triangles(n_exp, new_pts, faces) & area_ok
     degenerate = min_angle_deg(ref_pts, faces) < DEGENERATE_MIN_ANGLE
     counted = area_ok & ~degenerate
     qr = SurfaceQuery(body_faces, ref_body)

@@ -84,7 +84,9 @@ def expected_normals(ref_pts: np.ndarray, faces: np.ndarray, grad: np.ndarray) -
     return n_exp
 
 
-def _folded(n_exp: np.ndarray, pts: np.ndarray, faces: np.ndarray) -> np.ndarray:
+def folded_triangles(n_exp: np.ndarray, pts: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(F,) bool: triangles (F, 3) of points (M, 3) whose normal opposes
+    their expected normal n_exp (F, 3) (:func:`expected_normals`)."""
     p0 = pts[faces[:, 0]]
     n_new = np.cross(pts[faces[:, 1]] - p0, pts[faces[:, 2]] - p0)
     return np.einsum("fi,fi->f", n_exp, n_new) < 0
@@ -123,8 +125,8 @@ def lift_folds(ref_pts: np.ndarray, before: np.ndarray, after: np.ndarray, faces
     if len(cand) == 0:
         return out, lifted
     n_exp = expected_normals(ref_pts, cand, grad)
-    ok = ~_folded(n_exp, before, cand)
-    group = _folded(n_exp, after, cand) & ok
+    ok = ~folded_triangles(n_exp, before, cand)
+    group = folded_triangles(n_exp, after, cand) & ok
     if not group.any():
         return out, lifted
     for r in range(rounds):
@@ -150,13 +152,13 @@ def lift_folds(ref_pts: np.ndarray, before: np.ndarray, after: np.ndarray, faces
         comp[verts] = lab
         out = after.copy()
         out[verts] = before[verts] + mag[:, None] * u[lab]
-        still = comp[cand[_folded(n_exp, out, cand) & ok]]
+        still = comp[cand[folded_triangles(n_exp, out, cand) & ok]]
         steep = np.isin(lab, still[still >= 0])  # the slope still folds: one translation
         top = np.zeros(nc)
         np.maximum.at(top, lab, along)
         mag[steep] = top[lab[steep]]
         out[verts] = before[verts] + mag[:, None] * u[lab]
-        new = _folded(n_exp, out, cand) & ok & ~group
+        new = folded_triangles(n_exp, out, cand) & ok & ~group
         if not new.any() or r == rounds - 1:
             break
         group |= new  # the lift folded triangles at a group's rim: lift them with it
@@ -195,7 +197,7 @@ class _BadElements:
 
     def __call__(self, pts):
         e = self.edges
-        folded = _folded(self.n_exp, pts, self.faces)
+        folded = folded_triangles(self.n_exp, pts, self.faces)
         ln = np.linalg.norm(pts[e[:, 1]] - pts[e[:, 0]], axis=1)
         ratio = ln / np.maximum(self.g, 1e-12)
         bad = ((ratio < self.lo) | (ratio > self.hi)) & (self.g > 1e-9)
