@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .body_stretch import stretch_range
 from .clearance import SurfaceQuery
 
 
@@ -70,81 +71,6 @@ def min_angle_deg(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
         cs = np.einsum("fi,fi->f", u, v) / np.maximum(np.linalg.norm(u, axis=1) * np.linalg.norm(v, axis=1), 1e-300)
         ang.append(np.degrees(np.arccos(np.clip(cs, -1.0, 1.0))))
     return np.min(ang, axis=0)
-
-
-def _offset_factor(ref_body, fit_body, body_faces, tri, bary, clearance, e, edge_len):
-    """(E,) growth of item edges (E, 2) (reference lengths ``edge_len``)
-    over the growth of the skin under them that comes from the item's
-    clearance alone: an offset surface at distance c over skin of normal
-    curvature k along the edge is ``1 + c k`` times as long as the skin, so
-    the factor is ``(1 + c k_fit) / (1 + c k_ref)``. The curvature along the
-    edge is the discrete normal derivative between its endpoints' closest
-    skin points, ``(n_j - n_i) . (p_j - p_i) / |p_j - p_i|^2``, with the same
-    skin points (triangle ``tri`` (M,), barycentrics ``bary`` (M, 3)) on both
-    bodies; c (m) is the endpoints' mean reference ``clearance`` (M,), 0 if
-    inside. Factor 1 where the skin points are less than a third of the
-    edge apart (an edge standing off the skin, e.g. along a hair strand) or
-    where an offset exceeds half the curvature radius of a concave part
-    (``1 + c k <= 0.5``: the offset surface folds there)."""
-    from .clearance import VertexNormals
-    vn = VertexNormals(body_faces, len(ref_body))
-    f = body_faces[tri]
-    grow, apart = [], None
-    c = np.maximum(0.5 * (clearance[e[:, 0]] + clearance[e[:, 1]]), 0.0)
-    for body in (ref_body, fit_body):
-        p = np.einsum("mc,mci->mi", bary, body[f])
-        n = np.einsum("mc,mci->mi", bary, vn(body)[f])
-        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-        dp = p[e[:, 1]] - p[e[:, 0]]
-        l2 = np.einsum("ei,ei->e", dp, dp)
-        if apart is None:
-            apart = l2 > (edge_len / 3.0) ** 2
-        grow.append(1.0 + c * np.einsum("ei,ei->e", n[e[:, 1]] - n[e[:, 0]], dp) / np.maximum(l2, 1e-300))
-    a, b = grow
-    return np.where(apart & (a > 0.5) & (b > 0.5), b / np.maximum(a, 0.5), 1.0)
-
-
-def principal_stretches(ref_body: np.ndarray, fit_body: np.ndarray, faces: np.ndarray):
-    """(smallest (T,), largest (T,)) principal stretch of every triangle
-    (T, 3) from ref_body to fit_body (N, 3): the extremes of the length ratio
-    of a segment in the triangle over all its directions (the singular
-    values of the in-plane deformation); its three edges' ratios lie in
-    between. Degenerate reference triangles get (1, 1)."""
-    def gram(p):
-        e1 = p[faces[:, 1]] - p[faces[:, 0]]
-        e2 = p[faces[:, 2]] - p[faces[:, 0]]
-        return (np.einsum("ij,ij->i", e1, e1), np.einsum("ij,ij->i", e1, e2), np.einsum("ij,ij->i", e2, e2))
-    a, b, c = gram(np.asarray(ref_body, dtype=np.float64))
-    d, e, f = gram(np.asarray(fit_body, dtype=np.float64))
-    det = a * c - b * b
-    ok = det > 1e-12 * np.maximum(a * c, 1e-300)
-    det = np.where(ok, det, 1.0)
-    # eigenvalues of G_ref^-1 G_fit (2 x 2): the squared principal stretches
-    tr = (c * d - 2 * b * e + a * f) / det
-    dt = (d * f - e * e) / det
-    disc = np.sqrt(np.maximum(0.25 * tr * tr - dt, 0.0))
-    hi = np.sqrt(np.maximum(0.5 * tr + disc, 0.0))
-    lo = np.sqrt(np.maximum(0.5 * tr - disc, 0.0))
-    return np.where(ok, lo, 1.0), np.where(ok, hi, 1.0)
-
-
-def stretch_range(ref_pts: np.ndarray, e: np.ndarray, triangles: np.ndarray, ref_body: np.ndarray,
-                  fit_body: np.ndarray, body_faces: np.ndarray, tri: np.ndarray, bary: np.ndarray,
-                  ref_clearance: np.ndarray):
-    """The body's own local stretch range for item edges e (E, 2): (lo (E,),
-    hi (E,)) edge-length ratios (new / reference), see :func:`shape_change`.
-
-    ref_pts (M, 3) item on the reference, triangles (M, K) its bound body
-    triangles, ref_body/fit_body (N, 3) with body_faces (T, 3), tri (M,) and
-    bary (M, 3) each item vertex's closest reference skin point,
-    ref_clearance (M,) its signed clearance (m)."""
-    tmin, tmax = principal_stretches(ref_body, fit_body, body_faces)
-    t2 = np.concatenate([triangles[e[:, 0]], triangles[e[:, 1]]], axis=1)  # (E, 2K)
-    smin, smax = tmin[t2].min(axis=1), tmax[t2].max(axis=1)
-    le_r = np.linalg.norm(ref_pts[e[:, 1]] - ref_pts[e[:, 0]], axis=1)
-    fac = _offset_factor(ref_body, fit_body, body_faces, tri, bary,
-                         np.asarray(ref_clearance, dtype=np.float64), e, le_r)
-    return np.minimum(smin, smin * fac), np.maximum(smax, smax * fac)
 
 
 def shape_change(ref_pts: np.ndarray, new_pts: np.ndarray, faces: np.ndarray, triangles: np.ndarray,
