@@ -30,9 +30,11 @@ def offset_factor(ref_body, fit_body, body_faces, tri, bary, clearance, e, edge_
     (``1 + c k <= 0.5``: the offset surface folds there)."""
     from .clearance import VertexNormals
     vn = VertexNormals(body_faces, len(ref_body))
-    f = body_faces[tri]
-    grow, apart = [], None
     c = np.maximum(0.5 * (clearance[e[:, 0]] + clearance[e[:, 1]]), 0.0)
+    used, e = np.unique(e, return_inverse=True)  # only the edges' own vertices
+    e = e.reshape(-1, 2)
+    f, bary = body_faces[tri[used]], bary[used]
+    grow, apart = [], None
     for body in (ref_body, fit_body):
         p = np.einsum("mc,mci->mi", bary, body[f])
         n = np.einsum("mc,mci->mi", bary, vn(body)[f])
@@ -70,19 +72,36 @@ def principal_stretches(ref_body: np.ndarray, fit_body: np.ndarray, faces: np.nd
     return np.where(ok, lo, 1.0), np.where(ok, hi, 1.0)
 
 
+def vertex_stretch(triangles: np.ndarray, ref_body: np.ndarray, fit_body: np.ndarray, body_faces: np.ndarray):
+    """(smallest (M,), largest (M,)) principal stretch (:func:`principal_stretches`)
+    over the K body triangles (M, K) each item vertex is bound to."""
+    tmin, tmax = principal_stretches(ref_body, fit_body, body_faces)
+    return tmin[triangles].min(axis=1), tmax[triangles].max(axis=1)
+
+
+def skin_range(e: np.ndarray, vertex_range: tuple):
+    """(smallest (E,), largest (E,)) principal stretch over the 2K body
+    triangles either end of each item edge e (E, 2) is bound to, from
+    :func:`vertex_stretch`: the skin's own part of :func:`stretch_range`,
+    which only widens it."""
+    vmin, vmax = vertex_range
+    return np.minimum(vmin[e[:, 0]], vmin[e[:, 1]]), np.maximum(vmax[e[:, 0]], vmax[e[:, 1]])
+
+
 def stretch_range(ref_pts: np.ndarray, e: np.ndarray, triangles: np.ndarray, ref_body: np.ndarray,
                   fit_body: np.ndarray, body_faces: np.ndarray, tri: np.ndarray, bary: np.ndarray,
-                  ref_clearance: np.ndarray):
+                  ref_clearance: np.ndarray, vertex_range: tuple | None = None):
     """The body's own local stretch range for item edges e (E, 2): (lo (E,),
     hi (E,)) edge-length ratios (new / reference), see :func:`metrics.shape_change`.
 
     ref_pts (M, 3) item on the reference, triangles (M, K) its bound body
     triangles, ref_body/fit_body (N, 3) with body_faces (T, 3), tri (M,) and
     bary (M, 3) each item vertex's closest reference skin point,
-    ref_clearance (M,) its signed clearance (m)."""
-    tmin, tmax = principal_stretches(ref_body, fit_body, body_faces)
-    t2 = np.concatenate([triangles[e[:, 0]], triangles[e[:, 1]]], axis=1)  # (E, 2K)
-    smin, smax = tmin[t2].min(axis=1), tmax[t2].max(axis=1)
+    ref_clearance (M,) its signed clearance (m); vertex_range: the result
+    of :func:`vertex_stretch` if already computed."""
+    if vertex_range is None:
+        vertex_range = vertex_stretch(triangles, ref_body, fit_body, body_faces)
+    smin, smax = skin_range(e, vertex_range)
     le_r = np.linalg.norm(ref_pts[e[:, 1]] - ref_pts[e[:, 0]], axis=1)
     fac = offset_factor(ref_body, fit_body, body_faces, tri, bary,
                         np.asarray(ref_clearance, dtype=np.float64), e, le_r)
