@@ -28,6 +28,7 @@ from scipy.spatial import cKDTree
 
 from . import regions as R
 from .binding import Binding, bind, local_signed_distance, rebind
+from .body_stretch import skin_range, stretch_range, vertex_stretch
 from .clearance import SurfaceQuery, VertexNormals
 from .errors import GeometryError, InputError
 from .kernels import assign_rows
@@ -547,6 +548,7 @@ class DressPlan:
     layers: list | None = None  # [(outer item, inner item, separation (n_outer,) m)]: :func:`layer_gaps`
     item_faces: np.ndarray | None = None  # (F, 3) triangles of all items, stacked vertex indices
     item_edges: np.ndarray | None = None  # (E, 2) their unique edges
+    ref_foot: tuple | None = None  # (triangle (M,), barycentrics (M, 3)): closest reference skin point
     timings: dict = field(default_factory=dict)
 
     def __post_init__(self):
@@ -705,8 +707,9 @@ def plan(ref: Character, k: int = 5, use_regions: bool = True, rigid="auto",
     # offset along a bound triangle's plane extrapolates: on a bent foot a
     # rigid shoe's plane offsets reach tens of centimetres)
     ref_query = SurfaceQuery(body.faces, body.points)
+    foot = ref_query.closest(pts)
     if ref_clearance is None:
-        ref_clear = ref_query.signed_distance(pts)
+        ref_clear = foot["distance"]
     else:
         if len(ref_clearance) != len(pts):
             raise ValueError(f"ref_clearance has {len(ref_clearance)} entries for {len(pts)} item vertices")
@@ -768,6 +771,7 @@ def plan(ref: Character, k: int = 5, use_regions: bool = True, rigid="auto",
                                         if items[i].name not in rigid_items],  # rigid parts move as a whole
                                        ref_clear),
                      ref_body=body.points, item_faces=item_faces, item_edges=edges(item_faces),
+                     ref_foot=(foot["triangle"], foot["bary"]),
                      timings={"regions_s": t1 - t0, "bind_s": t2 - t1, "plan_rest_s": t3 - t2})
 
 
@@ -923,12 +927,15 @@ def apply(plan_: DressPlan, body_points: np.ndarray, body_faces: np.ndarray,
 
 
 def untangle_items(plan_: DressPlan, body_points: np.ndarray, pts: np.ndarray, query: SurfaceQuery,
-                   target: np.ndarray, rigid_maps: list, bisect_steps: int = 5, **kw):
+                   target: np.ndarray, rigid_maps: list, bisect_steps: int = 5, relax: bool = True, **kw):
     """Run :func:`untangle.untangle` on redressed items (points (M, 3)):
     vertex gradients from the binding (rigid parts: their similarity
     ``s * rot`` from ``rigid_maps`` [(vertex indices, (3, 3))]), constraints
     = :func:`push_out` to ``target`` (M,) clearance (m) and
-    :func:`keep_layers`, both restricted to the re-solved vertices.
+    :func:`keep_layers`, both restricted to the re-solved vertices. With
+    ``relax``, edges still outside the body's stretch range
+    (:func:`stretch_limits`) are then brought back into it
+    (:func:`untangle.relax_edges`, same constraints).
     Returns (points (M, 3), touched (M,) bool, stats dict)."""
     from . import untangle as U
     b = plan_.binding
@@ -994,8 +1001,27 @@ def untangle_items(plan_: DressPlan, body_points: np.ndarray, pts: np.ndarray, q
             moved |= lifted
         return p, moved
 
+    detect = U.bad_elements_detector(plan_.ref_points, faces, item_edges, grad)
     new, touched, stats = U.untangle(plan_.ref_points, pts, faces, item_edges, plan_.neighbours, grad,
-                                     constrain, **kw)
+                                     constrain, detect=detect, **kw)
+    if relax:
+        # the edges the untangle left outside the body's own stretch range
+        # (its gradient field cannot be met across a seam between two body
+        # parts, and its constraints move single vertices again)
+        # (only edges outside the skin's own range can be outside the full
+        # range, which contains it: the full range is found for those and
+        # for the relaxed region only)
+        fixed = plan_.rigid_mask() if plan_.rigid_groups else np.zeros(len(pts), dtype=bool)
+        vr = vertex_stretch(b.triangles, plan_.ref_body, body_points, b.faces)
+        cand = np.flatnonzero(U.outside_range(plan_.ref_points, new, item_edges,
+                                              *skin_range(item_edges, vr), fixed))
+        if len(cand):
+            new, relaxed, st = U.relax_edges(
+                plan_.ref_points, new, item_edges,
+                lambda idx: stretch_limits(plan_, body_points, item_edges[idx], vr),
+                plan_.neighbours, fixed, constrain, lambda p: detect(p)[0], candidates=cand)
+            touched |= relaxed
+            stats.update(st)
     # the untangle must not trade the fit for shape: an item whose median
     # clearance error (|clearance - reference clearance| over all its
     # vertices, the dressing metric) grows by more than
@@ -1022,6 +1048,23 @@ def untangle_items(plan_: DressPlan, body_points: np.ndarray, pts: np.ndarray, q
             kept.append(item.name)
     stats["reverted_items"] = kept
     return new, touched, stats
+
+
+def stretch_limits(plan_: DressPlan, body_points: np.ndarray, item_edges: np.ndarray,
+                   vertex_range: tuple | None = None):
+    """(lo (E,), hi (E,)): the body's own stretch range (edge-length ratios,
+    :func:`body_stretch.stretch_range`) of item edges (E, 2) (stacked
+    indices) from the plan's reference body to ``body_points`` (N, 3), the
+    range :func:`metrics.shape_change` judges them by; vertex_range:
+    :func:`body_stretch.vertex_stretch` of the binding if already known."""
+    b = plan_.binding
+    if plan_.ref_foot is None:
+        res = SurfaceQuery(b.faces, plan_.ref_body).closest(plan_.ref_points)
+        foot = (res["triangle"], res["bary"])
+    else:
+        foot = plan_.ref_foot
+    return stretch_range(plan_.ref_points, item_edges, b.triangles, plan_.ref_body, body_points, b.faces,
+                         foot[0], foot[1], plan_.ref_clearance, vertex_range)
 
 
 def dress(ref: Character, target: Character, k: int = 5, use_regions: bool = True,

@@ -21,6 +21,15 @@ them, positions are found by a small sparse least-squares solve
 with all other vertices fixed where they are (a Poisson reconstruction of
 the patch from the target edge vectors, glued to the unchanged rest).
 
+The solve fits the blended body gradient, a field that is not integrable
+where neighbouring vertices follow different body parts (the crotch seam
+between a bent thigh and the other leg), and the constraints (out of the
+body, over the inner layer) then move single vertices again. A last pass,
+:func:`relax_edges`, therefore projects the few edges still outside the
+body's own stretch range (:mod:`body_stretch`) back into it, one edge
+length at a time (position-based, as in Mueller et al. 2007), under the
+same constraints.
+
 Units: those of the points (metres internally); gradients are unitless.
 """
 from __future__ import annotations
@@ -204,6 +213,13 @@ class _BadElements:
         return folded, bad
 
 
+def bad_elements_detector(ref_pts: np.ndarray, faces: np.ndarray, edges: np.ndarray, grad: np.ndarray,
+                          lo: float = STRETCH_LO, hi: float = STRETCH_HI):
+    """:func:`bad_elements` as a function of the points (M, 3) alone, for
+    repeated checks of one item set under one gradient field."""
+    return _BadElements(ref_pts, faces, edges, grad, lo, hi)
+
+
 def dilate(seed: np.ndarray, neighbours: sp.csr_matrix, rings: int) -> np.ndarray:
     """(M,) bool: ``seed`` grown by ``rings`` rings of the adjacency (M, M)."""
     out = np.asarray(seed, dtype=bool).copy()
@@ -291,7 +307,7 @@ class PatchSolver:
 
 def untangle(ref_pts: np.ndarray, pts: np.ndarray, faces: np.ndarray, edges: np.ndarray,
              neighbours: sp.csr_matrix, grad: np.ndarray, constrain, iterations: int = 2,
-             rings: int = 2, inner: int = 2, eps: float = 1e-2, anchor_weight: float = 10.0):
+             rings: int = 2, inner: int = 2, eps: float = 1e-2, anchor_weight: float = 10.0, detect=None):
     """Relax the neighbourhoods of folded triangles and badly stretched edges
     (:func:`bad_elements`) towards the body's local deformation
     (:class:`PatchSolver`), keeping the item out of the body and its layers
@@ -306,6 +322,7 @@ def untangle(ref_pts: np.ndarray, pts: np.ndarray, faces: np.ndarray, edges: np.
         from (which met the constraints). A relaxed vertex it moves is anchored at its
         corrected position for the following solves, so the patch settles
         around it instead of folding against it.
+    detect: :func:`bad_elements_detector` of these arguments, if already built.
     Each of ``iterations`` rounds re-detects bad elements, frees them plus
     ``rings`` rings and solves up to ``inner`` times while the constraints
     keep moving vertices; the result of the last ``constrain`` is kept.
@@ -317,7 +334,8 @@ def untangle(ref_pts: np.ndarray, pts: np.ndarray, faces: np.ndarray, edges: np.
     stats = {"solves": 0}
     anchored = np.zeros(len(pts), dtype=bool)
     anchor_pos = pts.copy()
-    detect = _BadElements(ref_pts, faces, edges, grad)
+    if detect is None:
+        detect = _BadElements(ref_pts, faces, edges, grad)
     for it in range(iterations):
         folded, bad = detect(pts)
         if it == 0:
@@ -342,4 +360,91 @@ def untangle(ref_pts: np.ndarray, pts: np.ndarray, faces: np.ndarray, edges: np.
         pts = fixed
     folded, bad = detect(pts)
     stats["folded_after"], stats["bad_edges_after"] = int(folded.sum()), int(bad.sum())
+    return pts, touched, stats
+
+
+RELAX_BAND = (0.85, 1.2)   # relax_edges projects an edge into this band x the body's stretch range
+RELAX_STOP = (0.82, 1.22)  # ... and works on every edge outside this one (the metric's is 0.8, 1.25)
+
+
+def outside_range(ref_pts: np.ndarray, pts: np.ndarray, edges: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                  fixed: np.ndarray, stop=None) -> np.ndarray:
+    """(E,) bool: edges (E, 2) whose length ratio (pts over ref_pts, both
+    (M, 3)) leaves ``stop`` (default :data:`RELAX_STOP`) x [lo, hi] (E,),
+    leaving out degenerate edges and edges with both ends ``fixed`` (M,)."""
+    stop = RELAX_STOP if stop is None else stop
+    lr = np.linalg.norm(ref_pts[edges[:, 1]] - ref_pts[edges[:, 0]], axis=1)
+    ln = np.linalg.norm(pts[edges[:, 1]] - pts[edges[:, 0]], axis=1)
+    ok = (lr > 1e-9) & ~(fixed[edges[:, 0]] & fixed[edges[:, 1]])
+    return ok & ((ln < stop[0] * lo * lr) | (ln > stop[1] * hi * lr))
+
+
+def relax_edges(ref_pts: np.ndarray, pts: np.ndarray, edges: np.ndarray, limits,
+                neighbours: sp.csr_matrix, fixed: np.ndarray, constrain, folded, candidates=None,
+                iterations: int = 30, rings: int = 2, band=RELAX_BAND, stop=RELAX_STOP):
+    """Bring item edges back into the body's local stretch range.
+
+    ref_pts/pts (M, 3) item points on the reference / now, edges (E, 2),
+    limits(idx (e,)) -> (lo (e,), hi (e,)): the body's stretch range of
+    edges ``edges[idx]`` (length ratios new / reference,
+    :func:`body_stretch.stretch_range`), neighbours (M, M) item adjacency,
+    fixed (M,) bool vertices that must not move (rigid parts).
+    constrain(points, mask, before) -> (points, moved): as in
+    :func:`untangle`; folded(points) -> (F,) bool folded item triangles.
+    candidates: indices of the only edges that can be outside the range
+    (default: all).
+
+    Edges with a length ratio outside ``stop`` x [lo, hi] seed a region
+    (plus ``rings`` rings, fixed vertices excluded). Each iteration moves
+    both ends of every region edge outside ``band`` x [lo, hi] along the
+    edge to the nearest length inside it (half each; all of it on a
+    region vertex whose partner is outside the region), averages the moves
+    per vertex (Jacobi), and applies ``constrain`` to the region. Stops when
+    no region edge is outside ``stop``, or after ``iterations``. If the
+    result folds more triangles than the input, the input is returned.
+
+    Returns (points (M, 3), touched (M,) bool, stats dict).
+    """
+    pts = np.array(pts, dtype=np.float64, copy=True)
+    touched = np.zeros(len(pts), dtype=bool)
+    cand = np.arange(len(edges)) if candidates is None else np.asarray(candidates)
+    bad = cand[outside_range(ref_pts, pts, edges[cand], *limits(cand), fixed, stop)]
+    stats = {"relax_edges_before": len(bad), "relax_iterations": 0}
+    if not len(bad):
+        stats["relax_edges_after"] = 0
+        return pts, touched, stats
+    seed = np.zeros(len(pts), dtype=bool)
+    seed[edges[bad].ravel()] = True
+    region = dilate(seed, neighbours, rings) & ~fixed
+    lr = np.linalg.norm(ref_pts[edges[:, 1]] - ref_pts[edges[:, 0]], axis=1)
+    act = np.flatnonzero((region[edges[:, 0]] | region[edges[:, 1]]) & (lr > 1e-9))
+    e, lr = edges[act], lr[act]
+    lo, hi = limits(act)
+    lo_b, hi_b = band[0] * lo * lr, band[1] * hi * lr
+    w = region.astype(np.float64)
+    wa, wb = w[e[:, 0]], w[e[:, 1]]
+    share_a = wa / np.maximum(wa + wb, 1e-300)
+    start = pts
+    for it in range(iterations):
+        if not outside_range(ref_pts, pts, e, lo, hi, fixed, stop).any():
+            break
+        d = pts[e[:, 1]] - pts[e[:, 0]]
+        ln = np.linalg.norm(d, axis=1)
+        excess = ln - np.clip(ln, lo_b, hi_b)   # > 0: too long, < 0: too short
+        on = excess != 0.0
+        c = (excess / np.maximum(ln, 1e-300))[:, None] * d
+        step = np.zeros_like(pts)
+        np.add.at(step, e[:, 0], c * share_a[:, None])
+        np.add.at(step, e[:, 1], -c * (1.0 - share_a)[:, None])
+        count = np.bincount(e[:, 0], weights=on * wa, minlength=len(pts)) + \
+            np.bincount(e[:, 1], weights=on * wb, minlength=len(pts))
+        new = pts + step / np.maximum(count, 1.0)[:, None]
+        pts, _ = constrain(new, region, pts)
+        stats["relax_iterations"] = it + 1
+    if folded(pts).sum() > folded(start).sum():
+        stats["relax_reverted"] = True
+        pts = start.copy()
+    else:
+        touched = region
+    stats["relax_edges_after"] = int(outside_range(ref_pts, pts, e, lo, hi, fixed, stop).sum())
     return pts, touched, stats
