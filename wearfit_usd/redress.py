@@ -1019,7 +1019,7 @@ def untangle_items(plan_: DressPlan, body_points: np.ndarray, pts: np.ndarray, q
             new, relaxed, st = U.relax_edges(
                 plan_.ref_points, new, item_edges,
                 lambda idx: stretch_limits(plan_, body_points, item_edges[idx], vr),
-                plan_.neighbours, fixed, constrain, lambda p: detect(p)[0], candidates=cand)
+                plan_.neighbours, fixed, constrain, faces, lambda p: detect(p)[0], candidates=cand)
             touched |= relaxed
             stats.update(st)
     # the untangle must not trade the fit for shape: an item whose median

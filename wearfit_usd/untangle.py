@@ -380,7 +380,8 @@ def outside_range(ref_pts: np.ndarray, pts: np.ndarray, edges: np.ndarray, lo: n
 
 
 def relax_edges(ref_pts: np.ndarray, pts: np.ndarray, edges: np.ndarray, limits,
-                neighbours: sp.csr_matrix, fixed: np.ndarray, constrain, folded, candidates=None,
+                neighbours: sp.csr_matrix, fixed: np.ndarray, constrain, faces: np.ndarray, folded,
+                candidates=None,
                 iterations: int = 30, rings: int = 2, band=RELAX_BAND, stop=RELAX_STOP):
     """Bring item edges back into the body's local stretch range.
 
@@ -390,7 +391,8 @@ def relax_edges(ref_pts: np.ndarray, pts: np.ndarray, edges: np.ndarray, limits,
     :func:`body_stretch.stretch_range`), neighbours (M, M) item adjacency,
     fixed (M,) bool vertices that must not move (rigid parts).
     constrain(points, mask, before) -> (points, moved): as in
-    :func:`untangle`; folded(points) -> (F,) bool folded item triangles.
+    :func:`untangle`; folded(points) -> (F,) bool: which item triangles
+    faces (F, 3) are folded.
     candidates: indices of the only edges that can be outside the range
     (default: all).
 
@@ -400,8 +402,9 @@ def relax_edges(ref_pts: np.ndarray, pts: np.ndarray, edges: np.ndarray, limits,
     edge to the nearest length inside it (half each; all of it on a
     region vertex whose partner is outside the region), averages the moves
     per vertex (Jacobi), and applies ``constrain`` to the region. Stops when
-    no region edge is outside ``stop``, or after ``iterations``. If the
-    result folds more triangles than the input, the input is returned.
+    no region edge is outside ``stop``, or after ``iterations``. Each
+    connected part of the region in which the pass folded a triangle gets
+    its input positions back.
 
     Returns (points (M, 3), touched (M,) bool, stats dict).
     """
@@ -441,10 +444,16 @@ def relax_edges(ref_pts: np.ndarray, pts: np.ndarray, edges: np.ndarray, limits,
         new = pts + step / np.maximum(count, 1.0)[:, None]
         pts, _ = constrain(new, region, pts)
         stats["relax_iterations"] = it + 1
-    if folded(pts).sum() > folded(start).sum():
-        stats["relax_reverted"] = True
-        pts = start.copy()
-    else:
-        touched = region
+    # a part of the region whose triangles this pass folded gets its input back
+    new_folds = folded(pts) & ~folded(start)
+    touched = region.copy()
+    if new_folds.any():
+        from scipy.sparse.csgraph import connected_components
+        keep = sp.diags(region.astype(np.float64))
+        part = connected_components(keep @ neighbours @ keep, directed=False)[1]
+        back = np.isin(part, np.unique(part[faces[new_folds].ravel()])) & region
+        pts[back] = start[back]
+        touched &= ~back
+        stats["relax_reverted_vertices"] = int(back.sum())
     stats["relax_edges_after"] = int(outside_range(ref_pts, pts, e, lo, hi, fixed, stop).sum())
     return pts, touched, stats
