@@ -205,7 +205,7 @@ def keep_layers(query: SurfaceQuery, pts: np.ndarray, offsets: np.ndarray, order
 
 
 def layer_gaps(query: SurfaceQuery, points: np.ndarray, offsets: np.ndarray, order: list,
-               clearance: np.ndarray, radius: float = 0.02) -> list:
+               clearance: np.ndarray, radius: float = 0.02, foot: np.ndarray | None = None) -> list:
     """Per-vertex separations for :func:`keep_layers`, measured on the reference.
 
     query: the reference body; points (M, 3): the reference items, stacked;
@@ -218,11 +218,13 @@ def layer_gaps(query: SurfaceQuery, points: np.ndarray, offsets: np.ndarray, ord
     already inside, a shoe collar on the reference keeps that relation
     instead of being lifted 5 mm over the collar. So the layer pass leaves
     the reference unchanged on its own body.
+    foot: (M, 3) the closest body points of ``points`` if already known.
     Returns [(outer, inner, separation (n_outer,) m)].
     """
     if not order:
         return []
-    foot = query.closest(points)["point"]
+    if foot is None:
+        foot = query.closest(points)["point"]
     out = []
     for i, j, sep in order:
         oi = np.arange(offsets[i], offsets[i + 1])
@@ -769,7 +771,7 @@ def plan(ref: Character, k: int = 5, use_regions: bool = True, rigid="auto",
                      layers=layer_gaps(ref_query, pts, offsets,
                                        [(i, j, g) for i, j, g in layer_order(items, offsets, pts, ref_clear)
                                         if items[i].name not in rigid_items],  # rigid parts move as a whole
-                                       ref_clear),
+                                       ref_clear, foot=foot["point"]),
                      ref_body=body.points, item_faces=item_faces, item_edges=edges(item_faces),
                      ref_foot=(foot["triangle"], foot["bary"]),
                      timings={"regions_s": t1 - t0, "bind_s": t2 - t1, "plan_rest_s": t3 - t2})
@@ -882,6 +884,7 @@ def apply(plan_: DressPlan, body_points: np.ndarray, body_faces: np.ndarray,
             # layers keep their order: an outer item stays over the item under it
             res = query.closest(pts)
             footprints = {k: res[k] for k in ("distance", "point", "normal")}
+            foot_at = pts.copy()  # where each footprint was taken
             pts, moved3 = keep_layers(query, pts, plan_.offsets, plan_.layers, footprints=footprints)
             moved |= moved3
         if spread:
@@ -913,13 +916,21 @@ def apply(plan_: DressPlan, body_points: np.ndarray, body_faces: np.ndarray,
                     res = query.closest(pts[sv])
                     for k in footprints:
                         footprints[k][sv] = res[k]
+                    foot_at[sv] = pts[sv]
                     pts, moved5 = keep_layers(query, pts, plan_.offsets, plan_.layers, mask=spread_v,
                                               footprints=footprints)
                     moved |= moved5
+        if footprints is not None:
+            # refresh the footprints of the vertices moved since they were taken
+            sv = np.flatnonzero((pts != foot_at).any(axis=1))
+            res = query.closest(pts[sv])
+            for k in footprints:
+                footprints[k][sv] = res[k]
     t2 = time.perf_counter()
     timings = {"evaluate_s": t1 - t0, "penetration_s": t2 - t1}
     if penetration and untangle:
-        pts, touched, stats = untangle_items(plan_, body_points, pts, query, target, rigid_maps)
+        pts, touched, stats = untangle_items(plan_, body_points, pts, query, target, rigid_maps,
+                                             footprints=footprints)
         moved |= touched
         timings["untangle_s"] = time.perf_counter() - t2
         debug(f"untangle: {stats}")
@@ -927,7 +938,8 @@ def apply(plan_: DressPlan, body_points: np.ndarray, body_faces: np.ndarray,
 
 
 def untangle_items(plan_: DressPlan, body_points: np.ndarray, pts: np.ndarray, query: SurfaceQuery,
-                   target: np.ndarray, rigid_maps: list, bisect_steps: int = 5, relax: bool = True, **kw):
+                   target: np.ndarray, rigid_maps: list, bisect_steps: int = 5, relax: bool = True,
+                   footprints: dict | None = None, **kw):
     """Run :func:`untangle.untangle` on redressed items (points (M, 3)):
     vertex gradients from the binding (rigid parts: their similarity
     ``s * rot`` from ``rigid_maps`` [(vertex indices, (3, 3))]), constraints
@@ -935,7 +947,9 @@ def untangle_items(plan_: DressPlan, body_points: np.ndarray, pts: np.ndarray, q
     :func:`keep_layers`, both restricted to the re-solved vertices. With
     ``relax``, edges still outside the body's stretch range
     (:func:`stretch_limits`) are then brought back into it
-    (:func:`untangle.relax_edges`, same constraints).
+    (:func:`untangle.relax_edges`, same constraints). footprints: the
+    closest body points of ``pts`` (:meth:`SurfaceQuery.closest` keys
+    distance, point, normal) if already known.
     Returns (points (M, 3), touched (M,) bool, stats dict)."""
     from . import untangle as U
     b = plan_.binding
@@ -949,10 +963,12 @@ def untangle_items(plan_: DressPlan, body_points: np.ndarray, pts: np.ndarray, q
         faces = np.concatenate([m.faces + a for m, a in zip(plan_.items, plan_.offsets[:-1])]).astype(np.int64)
     item_edges = plan_.item_edges if plan_.item_edges is not None else edges(faces)
     tgt = np.nan_to_num(np.asarray(target, dtype=np.float64), nan=-1.0)
-    footprints = None
-    if plan_.layers:
+    known, footprints_in = footprints is not None, footprints
+    if plan_.layers and not known:
         res = query.closest(pts)
         footprints = {k: res[k] for k in ("distance", "point", "normal")}
+    elif known:
+        footprints = {k: v.copy() for k, v in footprints.items()}  # constrain updates them
 
     def constrain(p, mask, before):
         # push_out and keep_layers with one closest-point query of the masked
@@ -1034,10 +1050,13 @@ def untangle_items(plan_: DressPlan, body_points: np.ndarray, pts: np.ndarray, q
              if touched[a:b].any()]
     rows = np.concatenate([np.arange(a, b) for _, a, b in spans]) if spans else np.zeros(0, dtype=np.int64)
     d_before = np.zeros(len(pts))
-    d_before[rows] = query.closest(pts[rows], ring=False)["distance"]
+    if known:
+        d_before[rows] = footprints_in["distance"][rows]
+    else:
+        d_before[rows] = query.closest(pts[rows])["distance"]
     d_after = d_before.copy()
     tv = np.flatnonzero(touched)
-    d_after[tv] = query.closest(new[tv], ring=False)["distance"]
+    d_after[tv] = query.closest(new[tv])["distance"]
     for item, a, b in spans:
         ref_c = plan_.ref_clearance[a:b]
         err_before = np.median(np.abs(d_before[a:b] - ref_c))
