@@ -37,6 +37,8 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
+from .sparse_solve import SPDSolver
+
 FLIP_COS = 0.0     # a triangle is folded when its normal and the expected one make > 90 degrees
 STRETCH_LO = 0.85  # edge length / expected edge length below this: over-compressed
 STRETCH_HI = 1.2   # ... above this: over-stretched
@@ -256,7 +258,9 @@ class PatchSolver:
     Each free vertex is tied to its position in ``pts`` with ``eps`` times
     its diagonal (keeps parts that are free as a whole in place). Assembled
     once; :meth:`solve` adds anchors (vertices pulled strongly towards given
-    positions) and runs three sparse solves (x, y, z) on one factorisation.
+    positions) and runs three sparse solves (x, y, z) on one sparse
+    Cholesky factorisation (:class:`sparse_solve.SPDSolver`; the symbolic
+    analysis is shared by the solves of one patch).
     """
 
     def __init__(self, ref_pts: np.ndarray, pts: np.ndarray, faces: np.ndarray, grad: np.ndarray,
@@ -283,13 +287,13 @@ class PatchSolver:
         self.diag = self.a.diagonal()
         self.rhs = gt @ b + (eps * self.diag)[:, None] * self.pts[self.idx]
         self.anchor = eps * self.diag
+        self.spd = SPDSolver()
 
     def solve(self, anchor_idx: np.ndarray | None = None, anchor_pts: np.ndarray | None = None,
               weight: float = 10.0) -> np.ndarray:
         """New points (M, 3); anchor_idx (C,) vertices (non-free ones are
         ignored) pulled towards anchor_pts (C, 3) with ``weight`` x their
         diagonal."""
-        from scipy.sparse.linalg import splu
         out = self.pts.copy()
         if len(self.idx) == 0:
             return out
@@ -300,8 +304,8 @@ class PatchSolver:
             extra = weight * self.diag[c]
             anchor[c] += extra
             rhs[c] += extra[:, None] * anchor_pts[k]
-        a = (self.a + sp.diags(anchor)).tocsc()
-        out[self.idx] = splu(a).solve(np.ascontiguousarray(rhs))
+        self.spd.factor(self.a + sp.diags(anchor))  # same pattern each time: one symbolic analysis
+        out[self.idx] = self.spd.solve(np.ascontiguousarray(rhs))
         return out
 
 
