@@ -423,6 +423,7 @@ def relax_edges(ref_pts: np.ndarray, pts: np.ndarray, edges: np.ndarray, limits,
     seed = np.zeros(len(pts), dtype=bool)
     seed[edges[bad].ravel()] = True
     region = dilate(seed, neighbours, rings) & ~fixed
+    stats["relax_region"] = int(region.sum())
     lr = np.linalg.norm(ref_pts[edges[:, 1]] - ref_pts[edges[:, 0]], axis=1)
     act = np.flatnonzero((region[edges[:, 0]] | region[edges[:, 1]]) & (lr > 1e-9))
     e, lr = edges[act], lr[act]
