@@ -45,12 +45,15 @@ def test_cli_reference_without_items_exit_2(tmp_path, usd_dir):
     assert not out.exists()
 
 
-def test_cli_dress_report(tmp_path, usd_dir):
+def test_cli_dress_report(tmp_path, usd_dir, capsys):
     import json
     out, rep = tmp_path / "d.usdc", tmp_path / "r.json"
     assert main(["dress", str(usd_dir / "ref_female.usda"), str(usd_dir / "body_female_thin.usdc"), "-o", str(out),
-                 "--report", str(rep), "-q"]) == 0
+                 "--report", str(rep)]) == 0
     items = json.loads(rep.read_text())["items"]
     assert {r["item"] for r in items} == {"eyebrow001", "female_casualsuit01", "shoes02", "ponytail01"}
     for r in items:
         assert r["new_pen_pct"] <= 0.5 and r["clear_med_mm"] <= 2.0
+        assert r["flipped_pct"] == 0.0 and r["overstretch_pct"] == 0.0, r
+    err = capsys.readouterr().err
+    assert "ponytail01" in err and "edges beyond the body's stretch 0.00 %" in err and "untangle" in err
