@@ -310,6 +310,15 @@ class LooseSmoother:
         return assign_rows(out, u, self._ref_u + self._solver.solve(rhs))
 
 
+def off_skin(res: dict, rows, clearance: np.ndarray) -> np.ndarray:
+    """(R, 3) points at ``clearance`` (R,) m along the unit normal from the
+    closest skin points of a :meth:`SurfaceQuery.closest` result ``res``,
+    for its ``rows`` (bool mask or indices)."""
+    n = res["normal"][rows]
+    n = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+    return res["point"][rows] + n * clearance[:, None]
+
+
 def push_out(body_query: SurfaceQuery, item_points: np.ndarray, min_clearance: np.ndarray,
              mask: np.ndarray | None = None, neighbours: sp.spmatrix | None = None,
              smooth: float = 0.5, passes: int = 2):
@@ -342,9 +351,7 @@ def push_out(body_query: SurfaceQuery, item_points: np.ndarray, min_clearance: n
         if not inside.any():
             break
         sel = idx[inside]
-        n = res["normal"][inside]
-        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-        new = res["point"][inside] + n * target[sel, None]
+        new = off_skin(res, inside, target[sel])
         delta = np.zeros_like(pts)
         delta[sel] = new - pts[sel]
         pts[sel] = new
@@ -998,9 +1005,7 @@ def untangle_items(plan_: DressPlan, body_points: np.ndarray, pts: np.ndarray, q
             # still inside (the start was inside too): closest skin point
             r2 = query.closest(p[pushed])
             bad = r2["distance"] < 0
-            n = r2["normal"][bad]
-            n = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-            p[pushed[bad]] = r2["point"][bad] + n * tgt[pushed[bad], None]
+            p[pushed[bad]] = off_skin(r2, bad, tgt[pushed[bad]])
             r2["distance"][bad] = tgt[pushed[bad]]
             for k in ("distance", "point", "normal"):
                 res[k][inside] = r2[k]
