@@ -15,7 +15,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
-from .kernels import HAVE_NUMBA, closest_candidates
+from .kernels import HAVE_NUMBA, closest_candidates, closest_signed
 from .kernels import face_normals as _compiled_face_normals
 from .kernels import vertex_normals as _compiled_vertex_normals
 
@@ -289,6 +289,10 @@ class SurfaceQuery:
             cand = np.concatenate([ci, self._ring[vi]], axis=1)
         else:
             cand = ci
+        if signed and HAVE_NUMBA:  # one compiled pass: best candidate, feature normal, sign
+            d, cp, tri_idx, bary, n = closest_signed(q, cand, self.points, self.faces, self.face_normal,
+                                                     self.edge_normal, self._edge_id, self._ring)
+            return d, cp, tri_idx, bary, n
         d, cp, bary, feat, tri_idx = self._eval_candidates(q, cand)
         if not signed:
             return np.sqrt(d), cp, tri_idx, bary, self.face_normal[tri_idx]

@@ -370,11 +370,75 @@ def _closest_candidates(q, cand, points, faces, out_d2, out_s, out_t, out_inside
         out_tri[i] = btri
 
 
+def _closest_signed(q, cand, points, faces, face_n, edge_n, edge_id, ring, out_d, out_p, out_tri, out_bary,
+                    out_n):
+    """:func:`_closest_candidates` finished in the same pass: the closest
+    point, barycentrics, the pseudo-normal of the closest feature (face: its
+    normal face_n (T, 3); edge k of the face (01, 12, 20): edge_n[edge_id[f,
+    k]] (E, 3); corner: the angle-weighted vertex pseudo-normal over ring)
+    and the signed distance (negative where the point lies behind that
+    normal), as ``SurfaceQuery.closest`` returns them."""
+    m, c = cand.shape
+    for i in range(m):
+        best = np.inf
+        s = 0.0
+        t = 0.0
+        inside = False
+        f = cand[i, 0]
+        for k in range(c):
+            g = cand[i, k]
+            dist, sg, tg, ing = _closest_on_triangle(q[i, 0], q[i, 1], q[i, 2], g, points, faces)
+            if dist < best:
+                best = dist
+                s = sg
+                t = tg
+                inside = ing
+                f = g
+        ia, ib, ic = faces[f, 0], faces[f, 1], faces[f, 2]
+        for j in range(3):
+            out_p[i, j] = points[ia, j] + s * (points[ib, j] - points[ia, j]) + t * (points[ic, j] - points[ia, j])
+        out_bary[i, 0] = 1.0 - s - t
+        out_bary[i, 1] = s
+        out_bary[i, 2] = t
+        out_tri[i] = f
+        # the closest feature, decided as clearance._feature does
+        if inside:
+            nx, ny, nz = face_n[f, 0], face_n[f, 1], face_n[f, 2]
+        else:
+            e = -1
+            v = -1
+            if t == 0:
+                if s == 0:
+                    v = ia
+                elif s == 1:
+                    v = ib
+                else:
+                    e = edge_id[f, 0]
+            elif s == 0:
+                if t == 1:
+                    v = ic
+                else:
+                    e = edge_id[f, 2]
+            else:
+                e = edge_id[f, 1]
+            if e >= 0:
+                nx, ny, nz = edge_n[e, 0], edge_n[e, 1], edge_n[e, 2]
+            else:
+                nx, ny, nz = _vertex_pseudo_normal(v, points, faces, ring, face_n)
+        out_n[i, 0] = nx
+        out_n[i, 1] = ny
+        out_n[i, 2] = nz
+        side = (q[i, 0] - out_p[i, 0]) * nx + (q[i, 1] - out_p[i, 1]) * ny + (q[i, 2] - out_p[i, 2]) * nz
+        out_d[i] = -np.sqrt(best) if side < 0 else np.sqrt(best)
+
+
 if HAVE_NUMBA:
     _closest_on_triangle = _jit(_closest_on_triangle)
     _closest_candidates_jit = _jit(_closest_candidates)
+    _closest_signed_jit = _jit(_closest_signed)
 else:  # pragma: no cover
     _closest_candidates_jit = None
+    _closest_signed_jit = None
 
 
 def closest_candidates(q, cand, points, faces):
@@ -386,6 +450,21 @@ def closest_candidates(q, cand, points, faces):
     out = (np.empty(m), np.empty(m), np.empty(m), np.empty(m, dtype=np.bool_), np.empty(m, dtype=np.int64))
     _closest_candidates_jit(np.ascontiguousarray(q, dtype=np.float64), np.ascontiguousarray(cand, dtype=np.int64),
                             points, faces, *out)
+    return out
+
+
+def closest_signed(q, cand, points, faces, face_n, edge_n, edge_id, ring):
+    """Signed closest point among candidate triangles (compiled; numba
+    only). q (M, 3), cand (M, c), points (N, 3), faces (T, 3), face_n (T, 3)
+    unit face normals, edge_n (E, 3) edge pseudo-normals, edge_id (T, 3)
+    edges 01, 12, 20 of each face, ring (N, w) triangles around each vertex
+    (padded by repeating the first). Returns (signed distance (M,), point
+    (M, 3), triangle (M,), barycentrics (M, 3), feature pseudo-normal (M, 3),
+    not unit)."""
+    m = len(q)
+    out = (np.empty(m), np.empty((m, 3)), np.empty(m, dtype=np.int64), np.empty((m, 3)), np.empty((m, 3)))
+    _closest_signed_jit(np.ascontiguousarray(q, dtype=np.float64), np.ascontiguousarray(cand, dtype=np.int64),
+                        points, faces, face_n, edge_n, edge_id, ring, *out)
     return out
 
 
