@@ -89,3 +89,15 @@ def test_compiled_signed_query_equals_the_numpy_features():
     np.testing.assert_allclose(res["point"], cp, atol=1e-15)
     np.testing.assert_allclose(res["normal"], n, atol=1e-12)
     np.testing.assert_allclose(res["distance"], sign * np.sqrt(d2), atol=1e-15)
+
+
+def test_moved_to_shares_topology_and_leaves_the_original():
+    mesh = trimesh.creation.icosphere(subdivisions=2, radius=1.0)
+    sq = SurfaceQuery(mesh.faces, mesh.vertices)
+    p = np.array([[0.0, 0.0, 1.5]])
+    d0 = sq.signed_distance(p)[0]
+    big = sq.moved_to(mesh.vertices * 2.0)
+    assert big._ring is sq._ring and big._edge_id is sq._edge_id
+    np.testing.assert_allclose(big.signed_distance(p), SurfaceQuery(mesh.faces, mesh.vertices * 2.0).signed_distance(p))
+    assert big.signed_distance(p)[0] < -0.45
+    assert sq.signed_distance(p)[0] == d0 and sq.points is not big.points

@@ -11,6 +11,7 @@ the points (metres internally).
 """
 from __future__ import annotations
 
+import copy
 import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
@@ -159,6 +160,13 @@ class SurfaceQuery:
         self.points = None
         if points is not None:
             self.update(points)
+
+    def moved_to(self, points: np.ndarray) -> "SurfaceQuery":
+        """A new query on the same triangles at (N, 3) ``points``, sharing
+        this one's topology tables (edges, rings, incidences) instead of
+        building them again; this query is left as it is."""
+        other = copy.copy(self)
+        return other.update(points)
 
     def update(self, points: np.ndarray) -> "SurfaceQuery":
         """Move the surface to (N, 3) points. Face normals are recomputed

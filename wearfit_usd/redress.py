@@ -558,6 +558,7 @@ class DressPlan:
     item_faces: np.ndarray | None = None  # (F, 3) triangles of all items, stacked vertex indices
     item_edges: np.ndarray | None = None  # (E, 2) their unique edges
     ref_foot: tuple | None = None  # (triangle (M,), barycentrics (M, 3)): closest reference skin point
+    body_query: SurfaceQuery | None = field(default=None, repr=False, compare=False)  # on ref_body
     timings: dict = field(default_factory=dict)
 
     def __post_init__(self):
@@ -780,7 +781,7 @@ def plan(ref: Character, k: int = 5, use_regions: bool = True, rigid="auto",
                                         if items[i].name not in rigid_items],  # rigid parts move as a whole
                                        ref_clear, foot=foot["point"]),
                      ref_body=body.points, item_faces=item_faces, item_edges=edges(item_faces),
-                     ref_foot=(foot["triangle"], foot["bary"]),
+                     ref_foot=(foot["triangle"], foot["bary"]), body_query=ref_query,
                      timings={"regions_s": t1 - t0, "bind_s": t2 - t1, "plan_rest_s": t3 - t2})
 
 
@@ -1111,7 +1112,10 @@ def dress(ref: Character, target: Character, k: int = 5, use_regions: bool = Tru
     else:
         p = plan(ref, k=k, use_regions=use_regions, rigid=rigid, strict_far=strict_far,
                  bind_labels=bind_labels, skirt_items=skirt_items, ref_clearance=ref_clearance)
-    query = SurfaceQuery(ref.body.faces, body_points) if penetration else None
+    query = None
+    if penetration:  # the plan's reference-body query has this topology
+        query = (p.body_query.moved_to(body_points) if p.body_query is not None
+                 else SurfaceQuery(ref.body.faces, body_points))
     if penetration and p.rigid_groups:
         p, released = release_misfits(p, body_points, query)
         if released:
