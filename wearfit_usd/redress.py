@@ -24,6 +24,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from . import regions as R
@@ -54,7 +55,6 @@ def adjacency(faces: np.ndarray, n: int) -> sp.csr_matrix:
 
 def components(faces: np.ndarray, n: int) -> np.ndarray:
     """(n,) connected-component label of each vertex."""
-    from scipy.sparse.csgraph import connected_components
     return connected_components(adjacency(faces, n), directed=False)[1]
 
 
@@ -601,12 +601,12 @@ def item_labels(ref_body: Mesh, body_labels: np.ndarray, tri_labels: np.ndarray,
     skirts = []
     for item, a, b in zip(items, offsets[:-1], offsets[1:]):
         lab = labels[a:b]
-        comp = components(item.faces, item.n_points)
         e = edges(item.faces)
         la, lb = lab[e[:, 0]], lab[e[:, 1]]
         cross = ((la == R.LEFT_LEG) & (lb == R.RIGHT_LEG)) | ((la == R.RIGHT_LEG) & (lb == R.LEFT_LEG))
         if not cross.any():
             continue
+        comp = components(item.faces, item.n_points)
         # trousers touch left and right leg only at the crotch; a skirt joins
         # them all the way down to its hem: count joining edges clearly below
         # the crotch (the lowest torso-region body vertex)
@@ -739,7 +739,7 @@ def plan(ref: Character, k: int = 5, use_regions: bool = True, rigid="auto",
         blocks.append(adjacency(item.faces, item.n_points))
         if rigid == "none" or rigid is None:
             continue
-        comp = components(item.faces, item.n_points)
+        comp = connected_components(blocks[-1], directed=False)[1]
         lab = labels[a:b]
         if rigid == "auto":
             groups = _auto_rigid(item, ref_clear[a:b], lab, comp, rigid_max_size,
