@@ -185,7 +185,7 @@ def test_layers_keep_their_order_on_a_heavier_body(tmp_path):
     target = make_target("short_heavy", ref)
     res = dress(ref, target)
     names = [m.name for m in res.items]
-    order = {(names[i], names[j]) for i, j, _ in res.plan.layers}
+    order = {(names[i], names[j]) for i, j, *_ in res.plan.layers}
     assert {("skirt", "shirt"), ("shirt", "undershirt")} <= order
     q = SurfaceQuery(target.body.faces, target.body.points)
     out = {m.name: q.closest(m.points) for m in res.items}
@@ -494,6 +494,41 @@ def test_layer_gaps_keep_the_reference_relation_of_each_vertex():
     assert moved[:len(grid)].all() and not moved[len(grid):].any()
     np.testing.assert_allclose(out[:len(grid)][~dip, 2], 0.004 + redress.LAYER_MIN_GAP, atol=1e-9)
     np.testing.assert_allclose(out[:len(grid)][dip, 2], 0.004 - 0.001, atol=1e-9)
+
+
+def test_layer_pairs_are_fixed_on_the_reference():
+    """An outer sheet 4 mm over an inner one that has a second, farther
+    sheet (a lapel 30 mm out) beside it. On the reference every outer
+    vertex pairs with the inner vertex under it; on a target where the
+    lapel slid over the same spot (its footprints now nearer than the inner
+    sheet's, which slid 1 mm), the layer pass still compares each outer
+    vertex with its own pair and moves nothing; searching again would lift
+    the outer sheet over the lapel."""
+    box = trimesh.creation.box(extents=(0.5, 0.5, 0.2))
+    q = SurfaceQuery(np.asarray(box.faces), np.asarray(box.vertices) - [0, 0, 0.1])
+    grid, faces = _grid(n=6, step=0.01)
+    inner = grid + [0, 0, 0.004]
+    lapel = grid + [0.1, 0, 0.030]          # 10 cm aside on the reference
+    outer = grid + [0, 0, 0.008]
+    n = len(grid)
+    pts = np.concatenate([outer, inner, lapel])
+    offsets = np.array([0, n, 3 * n])
+    items = [_mesh("outer", outer, faces), _mesh("inner", np.concatenate([inner, lapel]),
+                                                 np.concatenate([faces, faces + n]))]
+    clear = q.signed_distance(pts)
+    order = redress.layer_order(items, offsets, pts, clear)
+    layers = redress.layer_gaps(q, pts, offsets, order, clear)
+    pair = layers[0][3]
+    np.testing.assert_array_equal(pair, np.arange(n, 2 * n))   # each over its own inner vertex
+    assert not redress.keep_layers(q, pts, offsets, layers)[1].any()
+    tgt = pts.copy()
+    tgt[n:2 * n] += [0.001, 0.0, 0.0]      # the inner sheet slid 1 mm
+    tgt[2 * n:] = grid + [0.0, 0.0, 0.030]  # and the lapel over the outer sheet's very spot
+    out, moved = redress.keep_layers(q, tgt, offsets, layers)
+    assert not moved.any()
+    searched = [(i, j, g) for i, j, g, _ in layers]  # the same gaps, the inner vertex searched again
+    out2, moved2 = redress.keep_layers(q, tgt, offsets, searched)
+    assert moved2[:n].any() and out2[:n, 2].max() > 0.03
 
 
 def test_dressing_the_reference_onto_its_own_shape_gives_it_back(ref_male, ref_female, usd_dir):
