@@ -17,7 +17,9 @@ criterion instead: ``rigid_edges`` of them, ``overstretch_rigid_pct`` beyond
 [0.8, 1.25] x their part's fitted uniform scale, ``rigid_residual_mm`` how
 far a rigid part was bent off its best-fit similarity; ``_strict``
 columns: one body triangle, nothing left out), timings (binding evaluation,
-penetration + layer passes, untangle pass); for the same-topology
+penetration + layer passes, untangle pass; ``bind_redress_s`` = the plan
+plus ``dress`` on the fitted body, and the same at 15,000 item vertices with
+an outer layer added); for the same-topology
 targets also the MakeHuman proxy fit (.mhclo on the recipe shape incl. helper
 vertices) and the mean distance between both results.
 
@@ -51,6 +53,8 @@ SHAPE = {"ref_male.usda": "male_average", "ref_female.usda": "female_average",
          "body_female_heavy.usdc": "female_heavy", "body_female_short.usdc": "female_short",
          "body_female_uncommon_yup.usdc": "female_weak_uncommon_proportions",
          "body_female_heavy_remeshed.usdc": "female_heavy"}
+# targets on which the 15,000-vertex outfit is timed too (the slowest two)
+LARGE_TARGETS = {"body_male_muscular_heavy.usdc", "body_male_muscular_posed.usdc"}
 
 
 def _proxies():
@@ -77,6 +81,7 @@ def run(full: bool, out_dir: Path) -> list[dict]:
     proxies = _proxies()
     shapes = {}
     rows = []
+    fitted = {}
     for ref_name, targets in (("ref_male.usda", MALE), ("ref_female.usda", FEMALE)):
         ref = read_character(usd / ref_name)
         qr = SurfaceQuery(ref.body.faces, ref.body.points)
@@ -101,8 +106,12 @@ def run(full: bool, out_dir: Path) -> list[dict]:
                 continue
             # the reference's plan, made once, on this fitted body (rigid parts
             # that do not fit it are released: res.plan)
+            t0 = time.perf_counter()
             res = dress(ref, tgt, body_points=body, prepared=pl)
+            t_dress = time.perf_counter() - t0
             pl_t, pts, moved, tm = res.plan, res.points, res.moved, res.timings
+            if tname in LARGE_TARGETS:
+                fitted[tname] = (tgt, body)
             released = [n for n in pl.rigid_items if n not in pl_t.rigid_items]
             pts_k1 = wrap.evaluate(body)
             qt = SurfaceQuery(tgt.body.faces, tgt.body.points)
@@ -165,7 +174,8 @@ def run(full: bool, out_dir: Path) -> list[dict]:
                          "plan_s": round(t_plan, 4), "bind_s": round(pl.timings["bind_s"], 4),
                          "evaluate_ms": round(tm["evaluate_s"] * 1000, 3),
                          "penetration_s": round(tm["penetration_s"], 4),
-                         "untangle_s": round(tm.get("untangle_s", 0.0), 4), "body_fit_s": round(t_fit, 4)})
+                         "untangle_s": round(tm.get("untangle_s", 0.0), 4), "body_fit_s": round(t_fit, 4),
+                         "dress_s": round(t_dress, 4), "bind_redress_s": round(t_plan + t_dress, 4)})
         # per-frame evaluation speed of the whole binding (the lead's animation loop)
         n = 200
         t0 = time.perf_counter()
@@ -175,9 +185,56 @@ def run(full: bool, out_dir: Path) -> list[dict]:
         rows.append({"reference": ref_name, "target": "(per frame)", "item": "*evaluate*",
                      "verts": int(pl.binding.n_items), "evaluate_ms": round(per * 1000, 3),
                      "frames_per_s": round(1.0 / per, 1), "nnz": int(pl.binding.matrix.nnz)})
+        if ref_name == "ref_male.usda" and fitted:
+            rows += _large_outfit(ref, fitted)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "dress.json").write_text(json.dumps(rows, indent=1))
+    return rows
+
+
+def _large_outfit(ref, fitted: dict, n_total: int = 15000, repeat: int = 3) -> list[dict]:
+    """Binding plus redress time at the size the issue names (15,000 item
+    vertices; ref_male has 12,661): ref_male's items plus an outer layer 4 mm
+    over its suit (its first vertices, up to ``n_total`` in all), planned and
+    dressed on each fitted target of ``fitted`` {name: (target, fitted body
+    points)}; median of ``repeat`` runs, and the outer layer's fit figures."""
+    from dataclasses import replace
+    from wearfit_usd.clearance import SurfaceQuery
+    from wearfit_usd.metrics import clearance_change, shape_change
+    from wearfit_usd.redress import dress, plan
+    from benchmarks.bench_animate import _outer_layer
+    suit = max(ref.items, key=lambda m: m.n_points)
+    n_layer = n_total - sum(m.n_points for m in ref.items)
+    keep = np.all(suit.faces < n_layer, axis=1)
+    layer = replace(suit, name="outer_layer", points=_outer_layer(suit, 0.004)[:n_layer], faces=suit.faces[keep],
+                    primvars=[], normals_interpolation=None, joint_indices=None, joint_weights=None)
+    big = replace(ref, items=list(ref.items) + [layer])
+    d_ref = SurfaceQuery(ref.body.faces, ref.body.points).signed_distance(layer.points)
+    rows = []
+    for tname, (tgt, body) in fitted.items():
+        times = []
+        for _ in range(repeat):
+            t0 = time.perf_counter()
+            pl = plan(big)
+            t1 = time.perf_counter()
+            res = dress(big, tgt, body_points=body, prepared=pl)
+            times.append((t1 - t0, time.perf_counter() - t1))
+        t_plan, t_dress = np.median(np.array(times), axis=0)
+        sl = res.plan.item_slices()[-1]
+        p = res.points[sl]
+        sc = shape_change(layer.points, p, layer.faces, res.plan.binding.triangles[sl],
+                          res.plan.binding.weights[sl], ref.body.points, body, ref.body.faces, d_ref)
+        cc = clearance_change(d_ref, SurfaceQuery(tgt.body.faces, tgt.body.points).signed_distance(p))
+        rows.append({"reference": "ref_male.usda + outer layer", "target": tname, "item": "*timing*",
+                     "verts": int(res.points.shape[0]), "plan_s": round(float(t_plan), 4),
+                     "dress_s": round(float(t_dress), 4), "bind_redress_s": round(float(t_plan + t_dress), 4),
+                     "penetration_s": round(res.timings["penetration_s"], 4),
+                     "untangle_s": round(res.timings.get("untangle_s", 0.0), 4),
+                     "layer_new_pen_pct": round(cc["new_pen_pct"], 3),
+                     "layer_clear_med_mm": round(cc["clear_med_mm"], 3),
+                     "layer_flipped_pct": round(sc["flipped_pct"], 3),
+                     "layer_overstretch_pct": round(sc["overstretch_pct"], 3)})
     return rows
 
 
