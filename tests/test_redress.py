@@ -586,6 +586,13 @@ def test_rigid_parts_that_do_not_fit_the_body_move_freely(ref_male, usd_dir):
         row = rows[name]
         assert row["rigid_edges"] == 0 and row["flipped_pct"] == 0.0 and row["overstretch_pct"] == 0.0, row
         assert row["new_pen_pct"] <= 0.5 and row["clear_med_mm"] <= 0.5 and row["clear_p95_mm"] <= 2.0, row
+    # released parts keep their authored insets (the insoles inside the soles)
+    # also under --fix-reference-penetrations, which pushes the suit's out
+    fixed = redress.dress(ref_male, tgt, body_points=body, push_inherited=True)
+    sl = fixed.plan.item_slices()[[m.name for m in ref_male.items].index("shoes01")]
+    inset = fixed.plan.ref_clearance[sl] < -0.001
+    assert inset.sum() > 20
+    assert q.signed_distance(fixed.points[sl][inset]).max() < 0.0
     # on the reference's own shape nothing is released
     assert redress.release_misfits(pl, ref_male.body.points,
                                    SurfaceQuery(ref_male.body.faces, ref_male.body.points))[1] == []

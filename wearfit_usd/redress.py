@@ -545,6 +545,14 @@ def fitted_body_points(ref: Character, target: Character) -> np.ndarray:
 # --------------------------------------------------------------------------
 # dressing
 
+def _group_mask(groups: list, m: int) -> np.ndarray:
+    """(m,) bool: the vertices of rigid groups [(vertex indices, ...)]."""
+    mask = np.zeros(m, dtype=bool)
+    for gv, *_ in groups:
+        mask[gv] = True
+    return mask
+
+
 @dataclass
 class DressPlan:
     """Everything topology-dependent, built once on the reference body.
@@ -582,6 +590,7 @@ class DressPlan:
     item_edges: np.ndarray | None = None  # (E, 2) their unique edges
     ref_foot: tuple | None = None  # (triangle (M,), barycentrics (M, 3)): closest reference skin point
     body_query: SurfaceQuery | None = field(default=None, repr=False, compare=False)  # on ref_body
+    insets_kept: np.ndarray | None = None  # (M,) bool: keep authored insets (the plan's rigid parts)
     timings: dict = field(default_factory=dict)
 
     def __post_init__(self):
@@ -590,10 +599,7 @@ class DressPlan:
 
     def rigid_mask(self) -> np.ndarray:
         """(M,) bool: item vertices of the rigid groups."""
-        m = np.zeros(len(self.ref_points), dtype=bool)
-        for gv, _, _ in self.rigid_groups:
-            m[gv] = True
-        return m
+        return _group_mask(self.rigid_groups, len(self.ref_points))
 
     def item_slices(self):
         return [slice(int(a), int(b)) for a, b in zip(self.offsets[:-1], self.offsets[1:])]
@@ -796,6 +802,7 @@ def plan(ref: Character, k: int = 5, use_regions: bool = True, rigid="auto",
     return DressPlan(items=items, binding=binding, offsets=offsets, ref_points=pts,
                      ref_clearance=ref_clear, labels=labels, tri_labels=tri_labels,
                      body_labels=body_labels, rigid_groups=rigid_groups,
+                     insets_kept=_group_mask(rigid_groups, len(pts)),
                      rigid_items=rigid_items, skirt_items=skirts, neighbours=neighbours,
                      looseness=loose, smoother=LooseSmoother(neighbours, loose),
                      bind_labels=region_labels,
@@ -834,8 +841,9 @@ def apply(plan_: DressPlan, body_points: np.ndarray, body_faces: np.ndarray,
     of the asset, e.g. a tight suit fitted by MakeHuman, which hides the skin
     under clothes with ``delete_verts``: the skin would show through); this
     repair flattens folds that dip into the body and so shortens their
-    edges. Vertices of rigid groups always keep such authored insets (they
-    move as a whole).
+    edges. Vertices of the plan's rigid groups always keep such authored
+    insets (they move as a whole; a shoe's insole stays inside the sole also
+    where :func:`release_misfits` freed the shoe on this body).
 
     spread: the penetration and layer passes move single vertices; spread
     their corrections smoothly over the item mesh (:func:`spread_corrections`,
@@ -888,7 +896,9 @@ def apply(plan_: DressPlan, body_points: np.ndarray, body_faces: np.ndarray,
         # the reference-shaped CMU-rig body came from it); they are still
         # pushed out where they newly penetrate
         inherited = push_inherited & (plan_.ref_clearance < -inherited_clearance)
-        if plan_.rigid_groups:
+        if plan_.insets_kept is not None:  # rigid parts, also when released on this body
+            inherited &= ~plan_.insets_kept
+        elif plan_.rigid_groups:
             inherited &= ~plan_.rigid_mask()
         target = np.where(plan_.ref_clearance > 0, plan_.ref_clearance,
                           np.where(inherited, inherited_clearance, np.nan))
