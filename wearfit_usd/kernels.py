@@ -341,33 +341,70 @@ def _closest_on_triangle(qx, qy, qz, f, points, faces):
     return dist, s, t, inside
 
 
+def _best_candidate(qx, qy, qz, cand, i, points, faces):
+    """Closest of the triangles cand[i] (row i of (M, c)) to (qx, qy, qz):
+    (squared distance, s, t, inside, triangle) as :func:`_closest_on_triangle`
+    (first candidate wins ties)."""
+    best = np.inf
+    bs = 0.0
+    bt = 0.0
+    bin_ = False
+    btri = cand[i, 0]
+    for k in range(cand.shape[1]):
+        f = cand[i, k]
+        dist, s, t, inside = _closest_on_triangle(qx, qy, qz, f, points, faces)
+        if dist < best:
+            best = dist
+            bs = s
+            bt = t
+            bin_ = inside
+            btri = f
+    return best, bs, bt, bin_, btri
+
+
+def _point_on(f, s, t, points, faces):
+    """The point a + s (b - a) + t (c - a) of triangle f."""
+    a = faces[f, 0]
+    b = faces[f, 1]
+    c = faces[f, 2]
+    return (points[a, 0] + s * (points[b, 0] - points[a, 0]) + t * (points[c, 0] - points[a, 0]),
+            points[a, 1] + s * (points[b, 1] - points[a, 1]) + t * (points[c, 1] - points[a, 1]),
+            points[a, 2] + s * (points[b, 2] - points[a, 2]) + t * (points[c, 2] - points[a, 2]))
+
+
+def _closest_feature(f, s, t, inside, faces, edge_id):
+    """The feature of triangle f that holds its closest point (s, t, inside
+    from :func:`_closest_on_triangle`), decided as clearance._feature does:
+    (edge id, vertex), both -1 for the face itself."""
+    e = -1
+    v = -1
+    if not inside:
+        if t == 0:
+            if s == 0:
+                v = faces[f, 0]
+            elif s == 1:
+                v = faces[f, 1]
+            else:
+                e = edge_id[f, 0]
+        elif s == 0:
+            if t == 1:
+                v = faces[f, 2]
+            else:
+                e = edge_id[f, 2]
+        else:
+            e = edge_id[f, 1]
+    return e, v
+
+
 def _closest_candidates(q, cand, points, faces, out_d2, out_s, out_t, out_inside, out_tri):
     """For each query point q[i] (M, 3) the closest point on the candidate
     triangles cand[i] (M, c) of the mesh (points (N, 3), faces (T, 3)).
     Writes the squared distance, the parameters (s, t) of the closest point
     a + s (b - a) + t (c - a), whether it is inside the face, and the
     triangle (first candidate wins ties)."""
-    m, c = cand.shape
-    for i in range(m):
-        best = np.inf
-        bs = 0.0
-        bt = 0.0
-        bin_ = False
-        btri = cand[i, 0]
-        for k in range(c):
-            f = cand[i, k]
-            dist, s, t, inside = _closest_on_triangle(q[i, 0], q[i, 1], q[i, 2], f, points, faces)
-            if dist < best:
-                best = dist
-                bs = s
-                bt = t
-                bin_ = inside
-                btri = f
-        out_d2[i] = best
-        out_s[i] = bs
-        out_t[i] = bt
-        out_inside[i] = bin_
-        out_tri[i] = btri
+    for i in range(cand.shape[0]):
+        out_d2[i], out_s[i], out_t[i], out_inside[i], out_tri[i] = _best_candidate(
+            q[i, 0], q[i, 1], q[i, 2], cand, i, points, faces)
 
 
 def _closest_signed(q, cand, points, faces, face_n, edge_n, edge_id, ring, out_d, out_p, out_tri, out_bary,
@@ -378,53 +415,20 @@ def _closest_signed(q, cand, points, faces, face_n, edge_n, edge_id, ring, out_d
     k]] (E, 3); corner: the angle-weighted vertex pseudo-normal over ring)
     and the signed distance (negative where the point lies behind that
     normal), as ``SurfaceQuery.closest`` returns them."""
-    m, c = cand.shape
-    for i in range(m):
-        best = np.inf
-        s = 0.0
-        t = 0.0
-        inside = False
-        f = cand[i, 0]
-        for k in range(c):
-            g = cand[i, k]
-            dist, sg, tg, ing = _closest_on_triangle(q[i, 0], q[i, 1], q[i, 2], g, points, faces)
-            if dist < best:
-                best = dist
-                s = sg
-                t = tg
-                inside = ing
-                f = g
-        ia, ib, ic = faces[f, 0], faces[f, 1], faces[f, 2]
-        for j in range(3):
-            out_p[i, j] = points[ia, j] + s * (points[ib, j] - points[ia, j]) + t * (points[ic, j] - points[ia, j])
+    for i in range(cand.shape[0]):
+        best, s, t, inside, f = _best_candidate(q[i, 0], q[i, 1], q[i, 2], cand, i, points, faces)
+        out_p[i, 0], out_p[i, 1], out_p[i, 2] = _point_on(f, s, t, points, faces)
         out_bary[i, 0] = 1.0 - s - t
         out_bary[i, 1] = s
         out_bary[i, 2] = t
         out_tri[i] = f
-        # the closest feature, decided as clearance._feature does
-        if inside:
-            nx, ny, nz = face_n[f, 0], face_n[f, 1], face_n[f, 2]
+        e, v = _closest_feature(f, s, t, inside, faces, edge_id)
+        if e >= 0:
+            nx, ny, nz = edge_n[e, 0], edge_n[e, 1], edge_n[e, 2]
+        elif v >= 0:
+            nx, ny, nz = _vertex_pseudo_normal(v, points, faces, ring, face_n)
         else:
-            e = -1
-            v = -1
-            if t == 0:
-                if s == 0:
-                    v = ia
-                elif s == 1:
-                    v = ib
-                else:
-                    e = edge_id[f, 0]
-            elif s == 0:
-                if t == 1:
-                    v = ic
-                else:
-                    e = edge_id[f, 2]
-            else:
-                e = edge_id[f, 1]
-            if e >= 0:
-                nx, ny, nz = edge_n[e, 0], edge_n[e, 1], edge_n[e, 2]
-            else:
-                nx, ny, nz = _vertex_pseudo_normal(v, points, faces, ring, face_n)
+            nx, ny, nz = face_n[f, 0], face_n[f, 1], face_n[f, 2]
         out_n[i, 0] = nx
         out_n[i, 1] = ny
         out_n[i, 2] = nz
@@ -434,6 +438,9 @@ def _closest_signed(q, cand, points, faces, face_n, edge_n, edge_id, ring, out_d
 
 if HAVE_NUMBA:
     _closest_on_triangle = _jit(_closest_on_triangle)
+    _best_candidate = _jit(_best_candidate, inline=True)
+    _point_on = _jit(_point_on, inline=True)
+    _closest_feature = _jit(_closest_feature, inline=True)
     _closest_candidates_jit = _jit(_closest_candidates)
     _closest_signed_jit = _jit(_closest_signed)
 else:  # pragma: no cover
@@ -768,46 +775,25 @@ def _exact_signed(ix, iy, iz, i, near, cand0, ring, points, faces, edge_id, face
             bt = t
             bin_ = inside
             btri = f
-    a = faces[btri, 0]
-    b = faces[btri, 1]
-    c = faces[btri, 2]
-    cx = points[a, 0] + bs * (points[b, 0] - points[a, 0]) + bt * (points[c, 0] - points[a, 0])
-    cy = points[a, 1] + bs * (points[b, 1] - points[a, 1]) + bt * (points[c, 1] - points[a, 1])
-    cz = points[a, 2] + bs * (points[b, 2] - points[a, 2]) + bt * (points[c, 2] - points[a, 2])
-    if bin_:
+    cx, cy, cz = _point_on(btri, bs, bt, points, faces)
+    e, v = _closest_feature(btri, bs, bt, bin_, faces, edge_id)
+    if e >= 0:
+        nx = 0.0
+        ny = 0.0
+        nz = 0.0
+        for k in range(edge_faces.shape[1]):
+            f = edge_faces[e, k]
+            if f < 0:
+                break
+            nx += face_n[f, 0]
+            ny += face_n[f, 1]
+            nz += face_n[f, 2]
+    elif v >= 0:
+        nx, ny, nz = _vertex_pseudo_normal(v, points, faces, ring, face_n)
+    else:
         nx = face_n[btri, 0]
         ny = face_n[btri, 1]
         nz = face_n[btri, 2]
-    else:
-        e = -1
-        v = -1
-        if bt == 0.0:
-            if bs == 0.0:
-                v = a
-            elif bs == 1.0:
-                v = b
-            else:
-                e = edge_id[btri, 0]
-        elif bs == 0.0:
-            if bt == 1.0:
-                v = c
-            else:
-                e = edge_id[btri, 2]
-        else:
-            e = edge_id[btri, 1]
-        if e >= 0:
-            nx = 0.0
-            ny = 0.0
-            nz = 0.0
-            for k in range(edge_faces.shape[1]):
-                f = edge_faces[e, k]
-                if f < 0:
-                    break
-                nx += face_n[f, 0]
-                ny += face_n[f, 1]
-                nz += face_n[f, 2]
-        else:
-            nx, ny, nz = _vertex_pseudo_normal(v, points, faces, ring, face_n)
     sd = np.sqrt(bd)
     if (ix - cx) * nx + (iy - cy) * ny + (iz - cz) * nz < 0:
         sd = -sd
