@@ -926,6 +926,14 @@ def apply(plan_: DressPlan, body_points: np.ndarray, body_faces: np.ndarray,
             res = query.closest(pts)
             footprints = {k: res[k] for k in ("distance", "point", "normal")}
             foot_at = pts.copy()  # where each footprint was taken
+
+            def refresh_footprints(pts):
+                # re-query the vertices moved since their footprint was taken
+                sv = np.flatnonzero((pts != foot_at).any(axis=1))
+                res = query.closest(pts[sv])
+                for k in footprints:
+                    footprints[k][sv] = res[k]
+                foot_at[sv] = pts[sv]
             pts, moved3 = keep_layers(query, pts, plan_.offsets, plan_.layers, footprints=footprints)
             moved |= moved3
         if spread:
@@ -953,20 +961,12 @@ def apply(plan_: DressPlan, body_points: np.ndarray, body_faces: np.ndarray,
                 pts, moved4 = push_out(query, pts, target, mask=check)
                 moved |= spread_v | moved4
                 if plan_.layers:
-                    sv = np.flatnonzero(moved)
-                    res = query.closest(pts[sv])
-                    for k in footprints:
-                        footprints[k][sv] = res[k]
-                    foot_at[sv] = pts[sv]
+                    refresh_footprints(pts)
                     pts, moved5 = keep_layers(query, pts, plan_.offsets, plan_.layers, mask=spread_v,
                                               footprints=footprints)
                     moved |= moved5
         if footprints is not None:
-            # refresh the footprints of the vertices moved since they were taken
-            sv = np.flatnonzero((pts != foot_at).any(axis=1))
-            res = query.closest(pts[sv])
-            for k in footprints:
-                footprints[k][sv] = res[k]
+            refresh_footprints(pts)  # for the untangle
     t2 = time.perf_counter()
     timings = {"evaluate_s": t1 - t0, "penetration_s": t2 - t1}
     if penetration and untangle:
