@@ -895,11 +895,10 @@ def apply(plan_: DressPlan, body_points: np.ndarray, body_faces: np.ndarray,
         # what bent them (every over-stretched shoe and short-hair edge on
         # the reference-shaped CMU-rig body came from it); they are still
         # pushed out where they newly penetrate
+        rig = plan_.rigid_mask()
         inherited = push_inherited & (plan_.ref_clearance < -inherited_clearance)
-        if plan_.insets_kept is not None:  # rigid parts, also when released on this body
-            inherited &= ~plan_.insets_kept
-        elif plan_.rigid_groups:
-            inherited &= ~plan_.rigid_mask()
+        # (the plan's rigid parts, also when released on this body)
+        inherited &= ~(plan_.insets_kept if plan_.insets_kept is not None else rig)
         target = np.where(plan_.ref_clearance > 0, plan_.ref_clearance,
                           np.where(inherited, inherited_clearance, np.nan))
         debug(f"penetration pass: {int(cand.sum())} of {len(cand)} vertices tested")
@@ -909,7 +908,6 @@ def apply(plan_: DressPlan, body_points: np.ndarray, body_faces: np.ndarray,
         before = pts
         ring_nb = plan_.neighbours
         if spread:  # rigid parts (not spread) keep the 1-ring smoothing
-            rig = plan_.rigid_mask() if plan_.rigid_groups else np.zeros(len(pts), dtype=bool)
             ring_nb = (sp.diags(rig.astype(np.float64)) @ plan_.neighbours @ sp.diags(rig.astype(np.float64))
                        + sp.diags((~rig).astype(np.float64))).tocsr()
         pts, moved = push_out(query, pts, target, mask=cand, neighbours=ring_nb)
@@ -942,8 +940,7 @@ def apply(plan_: DressPlan, body_points: np.ndarray, body_faces: np.ndarray,
             # as its own; then check the spread vertices once more
             req = moved | (np.abs(pts - before).max(axis=1) > 1e-6)
             single = pts
-            pts, spread_v = spread_corrections(plan_.ref_points, before, single, req, plan_.neighbours,
-                                               fixed=plan_.rigid_mask() if plan_.rigid_groups else None)
+            pts, spread_v = spread_corrections(plan_.ref_points, before, single, req, plan_.neighbours, fixed=rig)
             # an item the spread would move as a whole (a thin necklace lifted
             # over a shirt) keeps the single-vertex corrections: the spread
             # may change its median clearance by at most SPREAD_CLEARANCE_DRIFT
@@ -1066,7 +1063,7 @@ def untangle_items(plan_: DressPlan, body_points: np.ndarray, pts: np.ndarray, q
         # (only edges outside the skin's own range can be outside the full
         # range, which contains it: the full range is found for those and
         # for the relaxed region only)
-        fixed = plan_.rigid_mask() if plan_.rigid_groups else np.zeros(len(pts), dtype=bool)
+        fixed = plan_.rigid_mask()
         vr = vertex_stretch(b.triangles, plan_.ref_body, body_points, b.faces)
         cand = np.flatnonzero(U.outside_range(plan_.ref_points, new, item_edges,
                                               *skin_range(item_edges, vr), fixed))
