@@ -1053,7 +1053,7 @@ def untangle_items(plan_: DressPlan, body_points: np.ndarray, pts: np.ndarray, q
             moved |= lifted
         return p, moved
 
-    detect = U.bad_elements_detector(plan_.ref_points, faces, item_edges, grad)
+    detect = U.BadElements(plan_.ref_points, faces, item_edges, grad)
     new, touched, stats = U.untangle(plan_.ref_points, pts, faces, item_edges, plan_.neighbours, grad,
                                      constrain, detect=detect, **kw)
     if relax:

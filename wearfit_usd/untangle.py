@@ -193,13 +193,14 @@ def bad_elements(ref_pts: np.ndarray, pts: np.ndarray, faces: np.ndarray, edges:
     [lo, hi] x its expected length (:func:`edge_targets`).
     Returns (folded (F,) bool, bad edges (E,) bool).
     """
-    return _BadElements(ref_pts, faces, edges, grad, lo, hi)(pts)
+    return BadElements(ref_pts, faces, edges, grad, lo, hi)(pts)
 
 
-class _BadElements:
-    """:func:`bad_elements` for one item set and gradient field, with the
-    expected normals and edge lengths (which do not depend on the current
-    points) computed once."""
+class BadElements:
+    """:func:`bad_elements` as a function of the points (M, 3) alone, for
+    repeated checks of one item set under one gradient field: the expected
+    normals and edge lengths (which do not depend on the current points) are
+    computed once."""
 
     def __init__(self, ref_pts, faces, edges, grad, lo=STRETCH_LO, hi=STRETCH_HI):
         self.faces, self.edges, self.lo, self.hi = faces, edges, lo, hi
@@ -213,13 +214,6 @@ class _BadElements:
         ratio = ln / np.maximum(self.g, 1e-12)
         bad = ((ratio < self.lo) | (ratio > self.hi)) & (self.g > 1e-9)
         return folded, bad
-
-
-def bad_elements_detector(ref_pts: np.ndarray, faces: np.ndarray, edges: np.ndarray, grad: np.ndarray,
-                          lo: float = STRETCH_LO, hi: float = STRETCH_HI):
-    """:func:`bad_elements` as a function of the points (M, 3) alone, for
-    repeated checks of one item set under one gradient field."""
-    return _BadElements(ref_pts, faces, edges, grad, lo, hi)
 
 
 def dilate(seed: np.ndarray, neighbours: sp.csr_matrix, rings: int) -> np.ndarray:
@@ -326,7 +320,7 @@ def untangle(ref_pts: np.ndarray, pts: np.ndarray, faces: np.ndarray, edges: np.
         from (which met the constraints). A relaxed vertex it moves is anchored at its
         corrected position for the following solves, so the patch settles
         around it instead of folding against it.
-    detect: :func:`bad_elements_detector` of these arguments, if already built.
+    detect: :class:`BadElements` of these arguments, if already built.
     Each of ``iterations`` rounds re-detects bad elements, frees them plus
     ``rings`` rings and solves up to ``inner`` times while the constraints
     keep moving vertices; the result of the last ``constrain`` is kept.
@@ -339,7 +333,7 @@ def untangle(ref_pts: np.ndarray, pts: np.ndarray, faces: np.ndarray, edges: np.
     anchored = np.zeros(len(pts), dtype=bool)
     anchor_pos = pts.copy()
     if detect is None:
-        detect = _BadElements(ref_pts, faces, edges, grad)
+        detect = BadElements(ref_pts, faces, edges, grad)
     for it in range(iterations):
         folded, bad = detect(pts)
         if it == 0:
