@@ -57,6 +57,16 @@ def _outer_layer(mesh, offset: float) -> np.ndarray:
     return mesh.points + offset * vertex_normals(mesh.points, mesh.faces)
 
 
+def _layer_item(mesh, layer: np.ndarray, n: int):
+    """An item "outer_layer": the first ``n`` points of ``layer`` (M, 3)
+    (:func:`_outer_layer` of ``mesh``) with the triangles of ``mesh`` among
+    them, no primvars or skin weights."""
+    from dataclasses import replace
+    keep = np.all(mesh.faces < n, axis=1)
+    return replace(mesh, name="outer_layer", points=layer[:n], faces=mesh.faces[keep], primvars=[],
+                   normals_interpolation=None, joint_indices=None, joint_weights=None)
+
+
 def binding_microbench(repeat: int = 300) -> list[dict]:
     """One binding evaluation and one LBS of the same item vertices, timed on
     one core, for all items of ref_male.usda (12,661 vertices) and for those
@@ -115,10 +125,7 @@ def plan_microbench(ref, largest, layer: np.ndarray, body: np.ndarray, repeat: i
                            (f"ref_male items + outer layer over {largest.name}", largest.n_points)):
         items = list(ref.items)
         if n_layer:
-            keep = np.all(largest.faces < n_layer, axis=1)
-            items.append(replace(largest, name="outer_layer", points=layer[:n_layer],
-                                 faces=largest.faces[keep], primvars=[], normals_interpolation=None,
-                                 joint_indices=None, joint_weights=None))
+            items.append(_layer_item(largest, layer, n_layer))
         pl = plan(replace(ref, items=items), k=5)
         ev = FrameEvaluator(pl)
         t_fast = _per_call(lambda: ev(body), repeat)

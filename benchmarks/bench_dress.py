@@ -203,12 +203,9 @@ def _large_outfit(ref, fitted: dict, n_total: int = 15000, repeat: int = 3) -> l
     from wearfit_usd.clearance import SurfaceQuery
     from wearfit_usd.metrics import clearance_change, shape_change
     from wearfit_usd.redress import dress, plan
-    from benchmarks.bench_animate import _outer_layer
+    from benchmarks.bench_animate import _layer_item, _outer_layer
     suit = max(ref.items, key=lambda m: m.n_points)
-    n_layer = n_total - sum(m.n_points for m in ref.items)
-    keep = np.all(suit.faces < n_layer, axis=1)
-    layer = replace(suit, name="outer_layer", points=_outer_layer(suit, 0.004)[:n_layer], faces=suit.faces[keep],
-                    primvars=[], normals_interpolation=None, joint_indices=None, joint_weights=None)
+    layer = _layer_item(suit, _outer_layer(suit, 0.004), n_total - sum(m.n_points for m in ref.items))
     big = replace(ref, items=list(ref.items) + [layer])
     d_ref = SurfaceQuery(ref.body.faces, ref.body.points).signed_distance(layer.points)
     rows = []
