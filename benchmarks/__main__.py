@@ -10,7 +10,7 @@ import time
 import traceback
 from pathlib import Path
 
-from . import DATA, DEFAULT_OUT, STAGES, format_table, markdown_table
+from benchmarks import DATA, DEFAULT_OUT, STAGES, format_table, markdown_table
 
 
 def main(argv=None) -> int:

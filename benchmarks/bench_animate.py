@@ -53,7 +53,7 @@ def jitter(points: np.ndarray) -> float:
 def _outer_layer(mesh, offset: float) -> np.ndarray:
     """The mesh's points moved ``offset`` metres along its vertex normals (an
     extra garment layer over it), (M, 3)."""
-    from wearfit_usd.clearance import vertex_normals
+    from wearfit_usd.geometry.closest import vertex_normals
     return mesh.points + offset * vertex_normals(mesh.points, mesh.faces)
 
 
@@ -74,11 +74,11 @@ def binding_microbench(repeat: int = 300) -> list[dict]:
     its first vertices up to 15,000 in all (the size the issue asks about),
     and all of it (21k). The LBS-baseline per-frame
     cost (items skinned with weights copied from the body) in the same run."""
-    from wearfit_usd.binding import bind
-    from wearfit_usd.kernels import HAVE_NUMBA
-    from wearfit_usd.skinning import Skinner, skinning_matrices
-    from wearfit_usd.skin_transfer import transfer_weights
-    from wearfit_usd.usd_io import read_character
+    from wearfit_usd.dress.binding import bind
+    from wearfit_usd.kernels.compiled import HAVE_NUMBA
+    from wearfit_usd.motion.skinning import Skinner, skinning_matrices
+    from wearfit_usd.animate.skin_transfer import transfer_weights
+    from wearfit_usd.io.usd import read_character
     ref = read_character(USD_DIR / "ref_male.usda")
     skel = ref.skeleton
     mats = skinning_matrices(skel.bind_world, skel.bind_world)
@@ -116,8 +116,8 @@ def plan_microbench(ref, largest, layer: np.ndarray, body: np.ndarray, repeat: i
     15,000 vertices, and all of it), by :class:`frame_eval.FrameEvaluator`
     and by ``redress.apply`` (the general path) in the same run."""
     from dataclasses import replace
-    from wearfit_usd.frame_eval import FrameEvaluator
-    from wearfit_usd.redress import apply, plan
+    from wearfit_usd.animate.frame_eval import FrameEvaluator
+    from wearfit_usd.dress.redress import apply, plan
     n_base = sum(m.n_points for m in ref.items)
     rows = []
     for label, n_layer in (("ref_male items", 0), ("ref_male items + part of an outer layer (15,000)",
@@ -154,11 +154,11 @@ def _per_call(fn, repeat: int) -> float:
 
 
 def run_case(clip: str, ref_name: str, body_name: str, out_dir: Path, mode: str, every: int) -> dict:
-    from wearfit_usd.animate import AnimateOptions, animate
-    from wearfit_usd.bvh import read_bvh
+    from wearfit_usd.animate.try_on import AnimateOptions, animate
+    from wearfit_usd.io.bvh import read_bvh
     from wearfit_usd.transforms import transform_points
-    from wearfit_usd.usd_io import read_character
-    from wearfit_usd.usd_validate import validate_stage
+    from wearfit_usd.io.usd import read_character
+    from wearfit_usd.io.usd_validate import validate_stage
     from wearfit_usd.progress import set_verbosity
     set_verbosity(0)
     t0 = time.perf_counter()
@@ -173,7 +173,7 @@ def run_case(clip: str, ref_name: str, body_name: str, out_dir: Path, mode: str,
     stage, items, body = _read_back(shot, list(range(rep.frames)))
     ours = read_character(shot)
     # our LBS of the written file vs UsdSkel's
-    from wearfit_usd.skinning import skin_mesh
+    from wearfit_usd.motion.skinning import skin_mesh
     from pxr import Usd, UsdSkel
     errs = []
     cache = UsdSkel.Cache()
@@ -201,7 +201,7 @@ def long_clip(out_dir: Path, frames: int = 10000) -> dict:
     """A `frames`-long clip (the walk repeated) animated at its native 120 fps
     in a subprocess: wall time, peak resident memory and the value clips."""
     import subprocess
-    from wearfit_usd.bvh import read_bvh
+    from wearfit_usd.io.bvh import read_bvh
     src = BVH_DIR / "cmu_07_01_walk.bvh"
     motion = read_bvh(src)
     lines = src.read_text().splitlines()

@@ -58,7 +58,7 @@ LARGE_TARGETS = {"body_male_muscular_heavy.usdc", "body_male_muscular_posed.usdc
 
 
 def _proxies():
-    from wearfit_usd.mhclo import read_mhclo
+    from benchmarks.peers.mhclo import read_mhclo
     return [read_mhclo(p) for p in sorted((DATA / "items").glob("*/*.mhclo"))]
 
 
@@ -70,12 +70,12 @@ def _proxy_for(item, proxies):
 
 
 def run(full: bool, out_dir: Path) -> list[dict]:
-    from wearfit_usd.clearance import SurfaceQuery
-    from wearfit_usd.metrics import clearance_change, item_rigid_groups, shape_change
-    from wearfit_usd.mhclo import fit as mh_fit, shape_points, to_internal
-    from wearfit_usd.binding import bind
-    from wearfit_usd.redress import dress, fitted_body_points, plan
-    from wearfit_usd.usd_io import read_character
+    from wearfit_usd.geometry.closest import SurfaceQuery
+    from wearfit_usd.dress.metrics import clearance_change, item_rigid_groups, shape_change
+    from benchmarks.peers.mhclo import fit as mh_fit, shape_points, to_internal
+    from wearfit_usd.dress.binding import bind
+    from wearfit_usd.dress.redress import dress, fitted_body_points, plan
+    from wearfit_usd.io.usd import read_character
 
     usd = DATA / "usd"
     proxies = _proxies()
@@ -200,9 +200,9 @@ def _large_outfit(ref, fitted: dict, n_total: int = 15000, repeat: int = 3) -> l
     dressed on each fitted target of ``fitted`` {name: (target, fitted body
     points)}; median of ``repeat`` runs, and the outer layer's fit figures."""
     from dataclasses import replace
-    from wearfit_usd.clearance import SurfaceQuery
-    from wearfit_usd.metrics import clearance_change, shape_change
-    from wearfit_usd.redress import dress, plan
+    from wearfit_usd.geometry.closest import SurfaceQuery
+    from wearfit_usd.dress.metrics import clearance_change, shape_change
+    from wearfit_usd.dress.redress import dress, plan
     from benchmarks.bench_animate import _layer_item, _outer_layer
     suit = max(ref.items, key=lambda m: m.n_points)
     layer = _layer_item(suit, _outer_layer(suit, 0.004), n_total - sum(m.n_points for m in ref.items))
@@ -241,7 +241,7 @@ def _picture(ref, tgt, ours, mh, k1, dest: Path) -> None:
     import tempfile
     from PIL import Image, ImageDraw
     from wearfit_usd.render import render_frames
-    from wearfit_usd.usd_io import write_character
+    from wearfit_usd.io.usd import write_character
     tiles = []
     with tempfile.TemporaryDirectory() as tmp:
         stages = [("reference", ref.source, True)]

@@ -43,7 +43,7 @@ def _metrics(points, faces, target) -> dict:
     import trimesh
     from trimesh.proximity import closest_point
 
-    from wearfit_usd.body_fit import surface_samples
+    from wearfit_usd.fit.body_fit import surface_samples
     tp, tf = target.body.points, target.body.faces
     tm_t = trimesh.Trimesh(tp, tf, process=False)
     tm_f = trimesh.Trimesh(points, faces, process=False)
@@ -75,7 +75,7 @@ def _row(case, method, seconds, m, flipped, extra=None):
 
 
 def _ours(ref, target, opts):
-    from wearfit_usd.body_fit import fit_character
+    from wearfit_usd.fit.body_fit import fit_character
     t = time.perf_counter()
     res = fit_character(ref, target, opts)
     sec = time.perf_counter() - t - res.diagnostics.get("time_metrics_s", 0.0)
@@ -93,8 +93,8 @@ def _peer(start_points, faces, target):
 
 
 def run(full: bool, out_dir: Path) -> list[dict]:
-    from wearfit_usd.body_fit import count_flipped
-    from wearfit_usd.usd_io import read_character
+    from wearfit_usd.fit.body_fit import count_flipped
+    from wearfit_usd.io.usd import read_character
 
     refs = {"male": read_character(USD / "ref_male.usda"),
             "female": read_character(USD / "ref_female.usda")}

@@ -38,11 +38,11 @@ def bvh_dir() -> Path:
 
 @pytest.fixture(scope="session")
 def ref_male(usd_dir):
-    from wearfit_usd.usd_io import read_character
+    from wearfit_usd.io.usd import read_character
     return read_character(usd_dir / "ref_male.usda")
 
 
 @pytest.fixture(scope="session")
 def ref_female(usd_dir):
-    from wearfit_usd.usd_io import read_character
+    from wearfit_usd.io.usd import read_character
     return read_character(usd_dir / "ref_female.usda")

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from wearfit_usd.binding import bind
-from wearfit_usd.clearance import SurfaceQuery
+from wearfit_usd.dress.binding import bind
+from wearfit_usd.geometry.closest import SurfaceQuery
 from wearfit_usd.transforms import matrix_from_quat, quat_normalize
 
 

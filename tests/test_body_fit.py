@@ -5,20 +5,20 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from wearfit_usd.body_fit import FitOptions, SurfaceIndex, chamfer, fit_body, fit_character
-from wearfit_usd.clearance import closest_point_on_triangles
+from wearfit_usd.fit.body_fit import FitOptions, SurfaceIndex, chamfer, fit_body, fit_character
+from wearfit_usd.geometry.closest import closest_point_on_triangles
 from wearfit_usd.errors import GeometryError
 
 
 @pytest.fixture(scope="module")
 def remeshed(usd_dir):
-    from wearfit_usd.usd_io import read_character
+    from wearfit_usd.io.usd import read_character
     return read_character(usd_dir / "body_female_heavy_remeshed.usdc")
 
 
 @pytest.fixture(scope="module")
 def posed(usd_dir):
-    from wearfit_usd.usd_io import read_character
+    from wearfit_usd.io.usd import read_character
     return read_character(usd_dir / "body_male_muscular_posed.usdc")
 
 
@@ -52,7 +52,7 @@ def test_closest_point_matches_brute_force():
 
 
 def test_same_topology_fast_path_is_exact(ref_female, usd_dir):
-    from wearfit_usd.usd_io import read_character
+    from wearfit_usd.io.usd import read_character
     tgt = read_character(usd_dir / "body_female_thin.usdc")
     r = fit_character(ref_female, tgt)
     assert r.same_topology
@@ -212,7 +212,7 @@ def test_surface_index_exact_vs_fast(remeshed, ref_female):
 
 def test_cli_writes_readable_stage(tmp_path, usd_dir):
     from wearfit_usd.cli import main
-    from wearfit_usd.usd_io import read_character
+    from wearfit_usd.io.usd import read_character
     out = tmp_path / "fitted.usda"
     rc = main(["-q", "fit", str(usd_dir / "ref_male.usda"), str(usd_dir / "body_male_cmu_rig.usdc"),
                "-o", str(out)])

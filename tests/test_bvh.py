@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from wearfit_usd.bvh import (CMU_UNIT_M, euler_to_matrix, matrix_to_euler, read_bvh,
+from wearfit_usd.io.bvh import (CMU_UNIT_M, euler_to_matrix, matrix_to_euler, read_bvh,
                              write_bvh)
 from wearfit_usd.errors import BVHError
 

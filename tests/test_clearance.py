@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
-from wearfit_usd.clearance import SurfaceQuery, closest_point_on_triangles, signed_distance
+from wearfit_usd.geometry.closest import SurfaceQuery, closest_point_on_triangles, signed_distance
 
 
 def test_closest_point_regions_known_answers():

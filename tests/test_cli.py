@@ -9,7 +9,7 @@ import pytest
 
 from wearfit_usd.cli import COMMANDS, main
 
-from .conftest import BVH_DIR, USD_DIR
+from tests.conftest import BVH_DIR, USD_DIR
 
 
 def test_help_lists_every_subcommand(capsys):

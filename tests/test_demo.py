@@ -36,7 +36,7 @@ def test_dressing_meets_the_dressing_thresholds(demo):
 
 def test_shots_frames_validity_and_penetration(demo):
     out, rep = demo
-    from wearfit_usd.usd_io import read_character
+    from wearfit_usd.io.usd import read_character
     assert len(rep["shots"]) == 2
     for name, s in rep["shots"].items():
         assert s["frames"] == s["clip_frames"] == 60 and s["fps"] == 30

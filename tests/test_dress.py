@@ -7,7 +7,7 @@ from wearfit_usd.cli import main
 
 
 def test_cli_writes_target_body_and_all_items(tmp_path, usd_dir, ref_male):
-    from wearfit_usd.usd_io import read_character
+    from wearfit_usd.io.usd import read_character
     out = tmp_path / "out.usda"
     rc = main(["dress", str(usd_dir / "ref_male.usda"), str(usd_dir / "body_male_heavy.usdc"),
                "-o", str(out), "--k", "4", "-q"])

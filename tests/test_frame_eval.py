@@ -3,9 +3,9 @@ parts, loose-part smoothing) on the real reference and on the sample body."""
 import numpy as np
 from dataclasses import replace
 
-from wearfit_usd.frame_eval import FrameEvaluator
-from wearfit_usd.redress import apply, plan
-from wearfit_usd.skinning import skin_points, skinning_matrices
+from wearfit_usd.animate.frame_eval import FrameEvaluator
+from wearfit_usd.dress.redress import apply, plan
+from wearfit_usd.motion.skinning import skin_points, skinning_matrices
 
 
 def _posed(character, seed, angle=0.35):
@@ -45,7 +45,7 @@ def test_matches_apply_on_the_real_reference(ref_male):
 
 
 def test_matches_apply_on_the_sample_body():
-    from wearfit_usd.samples import make_body, make_items
+    from wearfit_usd.demo.samples import make_body, make_items
     body = make_body(resolution=0.03)
     ch = replace(body, items=make_items(body))
     _check(ch, seeds=(2,))

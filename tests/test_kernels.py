@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from wearfit_usd import kernels
-from wearfit_usd.binding import bind
-from wearfit_usd.clearance import closest_point_on_triangles
-from wearfit_usd.samples.body import make_body
+from wearfit_usd.kernels import compiled as kernels
+from wearfit_usd.dress.binding import bind
+from wearfit_usd.geometry.closest import closest_point_on_triangles
+from wearfit_usd.demo.samples.body import make_body
 
 pytestmark = pytest.mark.skipif(not kernels.HAVE_NUMBA, reason="numba not installed (the numpy paths run)")
 
@@ -74,12 +74,12 @@ def test_compiled_face_normals():
 
 _FALLBACK_SCRIPT = r"""
 import sys, numpy as np
-from wearfit_usd import kernels
+from wearfit_usd.kernels import compiled as kernels
 assert not kernels.HAVE_NUMBA
-from wearfit_usd.clearance import SurfaceQuery
-from wearfit_usd.binding import bind
-from wearfit_usd.penetration_guard import PenetrationGuard
-from wearfit_usd.samples.body import make_body
+from wearfit_usd.geometry.closest import SurfaceQuery
+from wearfit_usd.dress.binding import bind
+from wearfit_usd.animate.penetration_guard import PenetrationGuard
+from wearfit_usd.demo.samples.body import make_body
 body = make_body(resolution=0.03).body
 rng = np.random.default_rng(3)
 q = body.points[rng.choice(len(body.points), 500)] + rng.normal(scale=0.01, size=(500, 3))
@@ -97,8 +97,8 @@ def test_numpy_fallback_gives_the_same_numbers(tmp_path):
     import os
     import subprocess
     import sys
-    from wearfit_usd.clearance import SurfaceQuery
-    from wearfit_usd.penetration_guard import PenetrationGuard
+    from wearfit_usd.geometry.closest import SurfaceQuery
+    from wearfit_usd.animate.penetration_guard import PenetrationGuard
     out = tmp_path / "fallback.npz"
     env = dict(os.environ, WEARFIT_NO_NUMBA="1")
     subprocess.run([sys.executable, "-c", _FALLBACK_SCRIPT, str(out)], check=True, env=env)
@@ -130,11 +130,11 @@ def test_assign_rows_equals_fancy_assignment():
 def test_compiled_guard_matches_numpy_guard_over_frames():
     """The compiled guard frame (hinted nearest-vertex searches, one pass)
     gives the numpy path's pushes frame after frame, suspects included."""
-    from wearfit_usd.penetration_guard import PenetrationGuard
+    from wearfit_usd.animate.penetration_guard import PenetrationGuard
     body = make_body(resolution=0.03).body
     rng = np.random.default_rng(7)
     sel = rng.choice(len(body.points), 3000)
-    from wearfit_usd.clearance import vertex_normals
+    from wearfit_usd.geometry.closest import vertex_normals
     n = vertex_normals(body.points, body.faces)
     items = body.points[sel] + n[sel] * rng.uniform(0.0005, 0.02, size=(3000, 1))
     guards = [PenetrationGuard(body.faces, body.points, items, compiled=c) for c in (True, False)]
@@ -155,7 +155,7 @@ def test_compiled_guard_matches_numpy_guard_over_frames():
 
 
 def test_compiled_vertex_normals_match_sparse_incidence_sum():
-    from wearfit_usd.clearance import VertexNormals
+    from wearfit_usd.geometry.closest import VertexNormals
     body = make_body(resolution=0.03).body
     vn = VertexNormals(body.faces, len(body.points))
     ref = vn.incidence @ kernels.face_normals(body.points, body.faces, unit=False)

@@ -4,9 +4,9 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
-from wearfit_usd import metrics as M
-from wearfit_usd.binding import bind
-from wearfit_usd.body_stretch import principal_stretches
+from wearfit_usd.dress import metrics as M
+from wearfit_usd.dress.binding import bind
+from wearfit_usd.dress.body_stretch import principal_stretches
 
 
 def _plate():
@@ -95,8 +95,8 @@ def test_real_female_thin_ponytail(ref_female, usd_dir):
     by the strict figure: three hair-card slivers at 92-97 degrees): no
     flipped triangle by the main figure, its 52 degenerate reference
     triangles counted, at most the strict 0.056 %."""
-    from wearfit_usd.redress import dress
-    from wearfit_usd.usd_io import read_character
+    from wearfit_usd.dress.redress import dress
+    from wearfit_usd.io.usd import read_character
     tgt = read_character(usd_dir / "body_female_thin.usdc")
     rows = {r["item"]: r for r in M.dress_report(ref_female, tgt, dress(ref_female, tgt))}
     pony = rows["ponytail01"]

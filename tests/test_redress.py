@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 import trimesh
 
-from wearfit_usd import redress
-from wearfit_usd.clearance import SurfaceQuery
+from wearfit_usd.dress import redress
+from wearfit_usd.geometry.closest import SurfaceQuery
 from wearfit_usd.errors import InputError
 from wearfit_usd.model import Mesh
-from wearfit_usd.skinning import skin_mesh
+from wearfit_usd.motion.skinning import skin_mesh
 
 
 def _mesh(name, points, faces):
@@ -22,7 +22,7 @@ def _mesh(name, points, faces):
 
 @pytest.fixture(scope="module")
 def heavy(usd_dir):
-    from wearfit_usd.usd_io import read_character
+    from wearfit_usd.io.usd import read_character
     return read_character(usd_dir / "body_male_heavy.usdc")
 
 
@@ -44,7 +44,7 @@ def test_heavy_male_thresholds_per_item(ref_male, heavy):
 
 
 def test_rigid_item_stays_rigid(ref_male, usd_dir):
-    from wearfit_usd.usd_io import read_character
+    from wearfit_usd.io.usd import read_character
     tall = read_character(usd_dir / "body_male_tall.usdc")
     res = redress.dress(ref_male, tall, rigid=["shoes01"], penetration=False)
     sl = res.plan.item_slices()[[m.name for m in ref_male.items].index("shoes01")]
@@ -177,9 +177,9 @@ def test_layers_keep_their_order_on_a_heavier_body(tmp_path):
     the skirt (hanging from the hips) must stay over it, and the shirt over
     the undershirt, wherever they cover the same spot of the body."""
     from scipy.spatial import cKDTree
-    from wearfit_usd.clearance import SurfaceQuery
-    from wearfit_usd.redress import dress
-    from wearfit_usd.samples import make_body, make_items, make_target
+    from wearfit_usd.geometry.closest import SurfaceQuery
+    from wearfit_usd.dress.redress import dress
+    from wearfit_usd.demo.samples import make_body, make_items, make_target
     ref = make_body("reference")
     ref.items = make_items(ref)
     target = make_target("short_heavy", ref)
@@ -209,7 +209,7 @@ def test_untangle_unfolds_a_patch_under_push_out():
     """A patch 2 mm over a flat skin, folded (a row of vertices thrown past
     its neighbours) and partly inside: the untangle pass leaves no fold, no
     vertex inside, and the vertices away from the fold where they were."""
-    from wearfit_usd import untangle as U
+    from wearfit_usd.dress import untangle as U
     box = trimesh.creation.box(extents=(0.5, 0.5, 0.2))
     body = np.asarray(box.vertices) - [0, 0, 0.1]  # skin at z = 0
     q = SurfaceQuery(np.asarray(box.faces), body)
@@ -245,7 +245,7 @@ def test_relax_edges_brings_a_squeezed_patch_into_the_body_range():
     at 0.3x, the other edges at it stretched): afterwards every edge is
     inside RELAX_STOP x [1, 1], nothing folded or inside the skin, the fixed
     rim and the vertices away from the squeeze where they were."""
-    from wearfit_usd import untangle as U
+    from wearfit_usd.dress import untangle as U
     box = trimesh.creation.box(extents=[1.0, 1.0, 0.2])
     body = np.asarray(box.vertices) - [0, 0, 0.1]  # skin at z = 0
     q = SurfaceQuery(np.asarray(box.faces), body)
@@ -282,7 +282,7 @@ def test_relax_edges_gives_back_the_parts_it_would_fold():
     triangle (here a check that calls the triangles around spot A folded
     once A moved) that part of the region gets its input back; spot B keeps
     its relaxation."""
-    from wearfit_usd import untangle as U
+    from wearfit_usd.dress import untangle as U
     n = 14
     grid, faces = _grid(n=n)
     start = grid.copy()
@@ -309,7 +309,7 @@ def test_relax_edges_gives_back_the_parts_it_would_fold():
 def test_patch_solver_reproduces_an_affine_map():
     """With the body gradient of a rotation + stretch and the rim fixed on
     that map, the free interior is solved onto it exactly."""
-    from wearfit_usd import untangle as U
+    from wearfit_usd.dress import untangle as U
     grid, faces = _grid(n=9)
     a = np.radians(30)
     lin = np.array([[np.cos(a), np.sin(a), 0], [-np.sin(a), np.cos(a), 0], [0, 0, 1]]) @ np.diag([1.2, 0.9, 1.0])
@@ -328,8 +328,8 @@ def test_worst_targets_untangled(ref_male, usd_dir):
     the suit 3.2 % edges beyond the body's stretch): no flip in rigid
     parts, the suit at most 0.05 % flipped and 2 % over-stretched, the
     penetration and clearance figures still met."""
-    from wearfit_usd.metrics import clearance_change, flip_and_stretch
-    from wearfit_usd.usd_io import read_character
+    from wearfit_usd.dress.metrics import clearance_change, flip_and_stretch
+    from wearfit_usd.io.usd import read_character
     tgt = read_character(usd_dir / "body_male_muscular_heavy.usdc")
     res = redress.dress(ref_male, tgt)
     assert "untangle_s" in res.timings
@@ -349,7 +349,7 @@ def test_worst_targets_untangled(ref_male, usd_dir):
 def _assert_within_body_stretch(ref, tgt, res):
     """The issue's shape figures on every item: no flipped triangle and no
     free edge beyond the body's own local stretch (metrics.shape_change)."""
-    from wearfit_usd.metrics import dress_report
+    from wearfit_usd.dress.metrics import dress_report
     for row in dress_report(ref, tgt, res):
         assert row["flipped_pct"] == 0.0 and row["overstretch_pct"] == 0.0, row
         assert row["new_pen_pct"] <= 0.5 and row["clear_med_mm"] <= 2.0 and row["clear_p95_mm"] <= 10.0, row
@@ -360,7 +360,7 @@ def test_posed_target_within_body_stretch(ref_male, usd_dir):
     between the swung thigh and the other leg squeezed 7 suit edges to
     0.49-0.75x after the untangle (beyond 0.8 x the body's stretch); the
     last relax pass brings them back with every other figure kept."""
-    from wearfit_usd.usd_io import read_character
+    from wearfit_usd.io.usd import read_character
     tgt = read_character(usd_dir / "body_male_muscular_posed.usdc")
     res = redress.dress(ref_male, tgt)
     _assert_within_body_stretch(ref_male, tgt, res)
@@ -371,7 +371,7 @@ def test_lift_folds_moves_a_folded_patch_as_a_whole():
     (one pushed past its neighbour in-plane too: its triangles fold) is
     lifted without folds, every pushed vertex at least as far along the
     push as before, and the untouched far rim left where it was."""
-    from wearfit_usd import untangle as U
+    from wearfit_usd.dress import untangle as U
     grid, faces = _grid(n=9)
     before = grid.copy()
     after = grid.copy()
@@ -397,8 +397,8 @@ def test_rigid_parts_keep_their_authored_insets(ref_male, usd_dir):
     the shoe's insole still as deep inside the foot as on the reference
     (pushing those inherited insets out one vertex at a time used to bend
     22 shoe edges to 0.5-2.6 x their length)."""
-    from wearfit_usd.metrics import dress_report
-    from wearfit_usd.usd_io import read_character
+    from wearfit_usd.dress.metrics import dress_report
+    from wearfit_usd.io.usd import read_character
     tgt = read_character(usd_dir / "body_male_cmu_rig.usdc")
     res = redress.dress(ref_male, tgt)
     rows = {r["item"]: r for r in dress_report(ref_male, tgt, res)}
@@ -539,7 +539,7 @@ def test_dressing_the_reference_onto_its_own_shape_gives_it_back(ref_male, ref_f
     reference's own relations). With ``push_inherited`` the suit's insets
     are pushed out of the body instead (to 1 mm; the untangle pass keeps
     them outside)."""
-    from wearfit_usd.usd_io import read_character
+    from wearfit_usd.io.usd import read_character
     tgt = read_character(usd_dir / "body_male_cmu_rig.usdc")
     res = redress.dress(ref_male, tgt)
     assert not res.moved.any()
@@ -566,8 +566,8 @@ def test_rigid_parts_that_do_not_fit_the_body_move_freely(ref_male, usd_dir):
     on the new scalp, the shoes following the feet); the hat stays rigid.
     The released parts meet the dressing figures as free parts: no flipped
     triangle, no edge beyond the body's stretch."""
-    from wearfit_usd.metrics import dress_report
-    from wearfit_usd.usd_io import read_character
+    from wearfit_usd.dress.metrics import dress_report
+    from wearfit_usd.io.usd import read_character
     tgt = read_character(usd_dir / "body_male_muscular_heavy.usdc")
     pl = redress.plan(ref_male)
     assert {"short02", "shoes01", "fedora01"} <= set(pl.rigid_items)

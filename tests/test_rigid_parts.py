@@ -1,9 +1,9 @@
 """Batched rigid parts: exact on a known similarity, equal to one Umeyama fit per group."""
 import numpy as np
 
-from wearfit_usd.redress import similarity_fit
-from wearfit_usd.rigid_parts import RigidParts
-from wearfit_usd.bvh import axis_rotation
+from wearfit_usd.dress.redress import similarity_fit
+from wearfit_usd.dress.rigid_parts import RigidParts
+from wearfit_usd.io.bvh import axis_rotation
 
 
 def _groups(rng, n_body=300, n_items=200):

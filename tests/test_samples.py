@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 import trimesh
 
-from wearfit_usd.clearance import signed_distance
-from wearfit_usd.samples import (CLEARANCE, PRESETS, REMESHED_TARGETS, SAME_TOPOLOGY_TARGETS,
+from wearfit_usd.geometry.closest import signed_distance
+from wearfit_usd.demo.samples import (CLEARANCE, PRESETS, REMESHED_TARGETS, SAME_TOPOLOGY_TARGETS,
                                  make_body, make_items, make_target, write_sample_set)
-from wearfit_usd.samples.body import JOINT_NAMES, layout
-from wearfit_usd.skinning import skin_mesh
+from wearfit_usd.demo.samples.body import JOINT_NAMES, layout
+from wearfit_usd.motion.skinning import skin_mesh
 from wearfit_usd.transforms import make_matrix, matrix_from_quat
 
 REPO = Path(__file__).resolve().parents[1]
@@ -189,7 +189,7 @@ def test_item_shapes(ref, items):
 
 
 def test_sample_set_round_trips_through_usd(tmp_path):
-    from wearfit_usd.usd_io import read_character
+    from wearfit_usd.io.usd import read_character
     paths = write_sample_set(tmp_path, targets=["tall_thin", "curvy_remeshed"])
     assert set(paths) == {"reference", "target_tall_thin", "target_curvy_remeshed"}
     ref = make_body("reference")
@@ -227,13 +227,13 @@ def test_sample_set_round_trips_through_usd(tmp_path):
 
 @pytest.fixture(scope="module")
 def clips():
-    from wearfit_usd.bvh import read_bvh
+    from wearfit_usd.io.bvh import read_bvh
     return {n: read_bvh(REPO / "motions" / f"{n}.bvh") for n in ("walk", "arm_raise", "squat")}
 
 
 def test_clips_are_committed_deterministic_and_packaged(tmp_path):
-    from wearfit_usd.samples import motion_path
-    from wearfit_usd.samples.motions import CLIPS, write_clips
+    from wearfit_usd.demo.samples import motion_path
+    from wearfit_usd.demo.samples.motions import CLIPS, write_clips
     write_clips([tmp_path])
     for n in CLIPS:
         fresh = (tmp_path / f"{n}.bvh").read_bytes()

@@ -44,17 +44,17 @@ def register(sub, common):
 
 
 def run(args) -> int:
-    from ..animate import AnimateOptions, animate
-    from ..bvh import read_bvh
+    from ..animate.try_on import AnimateOptions, animate
+    from ..io.bvh import read_bvh
     from ..errors import InputError
     from ..progress import info
-    from ..usd_io import read_character
+    from ..io.usd import read_character
     fps = None if str(args.fps).lower() == "native" else float(args.fps)
     if fps is not None and fps <= 0:
         raise InputError(None, f"--fps must be positive or 'native', got {args.fps}")
     mapping = None
     if args.mapping:
-        from ..joint_maps import load_user_map
+        from ..motion.joint_maps import load_user_map
         mapping = load_user_map(args.mapping)
     reference = read_character(args.reference)
     target = read_character(args.target)

@@ -22,10 +22,10 @@ def register(sub, common):
 def run(args) -> int:
     from pathlib import Path
 
-    from ..demo import run_demo
+    from ..demo.demo import run_demo
     from ..errors import InputError
-    from ..samples import PRESETS
-    from ..samples.motions import CLIPS
+    from ..demo.samples import PRESETS
+    from ..demo.samples.motions import CLIPS
 
     shots = None
     if args.clip:

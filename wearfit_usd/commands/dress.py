@@ -40,8 +40,8 @@ def register(sub, common):
 
 def run(args) -> int:
     from ..progress import info
-    from ..redress import dress
-    from ..usd_io import read_character, write_character
+    from ..dress.redress import dress
+    from ..io.usd import read_character, write_character
 
     ref_path, tgt_path, out = Path(args.reference), Path(args.target), Path(args.output)
     for pth in (ref_path, tgt_path):
@@ -69,7 +69,7 @@ def run(args) -> int:
     t = res.timings
     if args.report:
         import json
-        from ..metrics import dress_report
+        from ..dress.metrics import dress_report
         rows = dress_report(ref, target, res)
         Path(args.report).write_text(json.dumps({"reference": str(ref_path), "target": str(tgt_path),
                                                  "output": str(out), "items": rows, "timings_s": t},

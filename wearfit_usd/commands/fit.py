@@ -52,9 +52,9 @@ def fitted_character(ref, target, result):
 
 
 def run(args) -> int:
-    from ..body_fit import fit_character
+    from ..fit.body_fit import fit_character
     from ..progress import info, warn
-    from ..usd_io import read_character, write_character
+    from ..io.usd import read_character, write_character
 
     for f in (args.reference, args.target):
         if not Path(f).exists():

@@ -41,7 +41,7 @@ def skin_weight_stats(mesh, n_joints: int) -> dict:
 
 def describe_usd(path: Path) -> dict:
     from pxr import UsdGeom
-    from ..usd_io import open_stage, read_character
+    from ..io.usd import open_stage, read_character
     stage = open_stage(path)
     char = read_character(path, require_skeleton=False)
     info = {
@@ -85,7 +85,7 @@ def describe_usd(path: Path) -> dict:
 
 
 def describe_bvh(path: Path, scale) -> dict:
-    from ..bvh import read_bvh
+    from ..io.bvh import read_bvh
     motion = read_bvh(path, scale=scale)
     return motion.summary()
 

@@ -54,7 +54,7 @@ class ClearanceField:
     points array object changes."""
 
     def __init__(self, body_faces: np.ndarray):
-        from ..clearance import SurfaceQuery  # lazy: heavy and optional
+        from ..geometry.closest import SurfaceQuery  # lazy: heavy and optional
         self._query = SurfaceQuery(np.asarray(body_faces, dtype=np.int64))
         self._body_obj = None
 

@@ -51,7 +51,7 @@ ITEM_DISPLAY_OFFSET = 0.003
 def _outward_offsets(scene: SceneDescription, offset: float):
     """Per item mesh: +1/-1 so that its vertex normals point away from the
     body (decided once, on the first frame), or None without a body."""
-    from ..clearance import SurfaceQuery, VertexNormals
+    from ..geometry.closest import SurfaceQuery, VertexNormals
     body = scene.body
     if body is None or offset <= 0:
         return {}

@@ -174,7 +174,7 @@ def select_times(time_range: tuple[float, float], frames, path) -> list[float]:
 
 def _triangles(prim, path, time):
     from pxr import UsdGeom
-    from ..usd_io import triangulate
+    from ..io.usd import triangulate
     mesh = UsdGeom.Mesh(prim)
     counts = mesh.GetFaceVertexCountsAttr().Get(time)
     idx = mesh.GetFaceVertexIndicesAttr().Get(time)
@@ -209,7 +209,7 @@ def read_scene(path, frames=None, progress_desc: str | None = None) -> SceneDesc
 
     Raises InputError (missing file, no meshes, frames outside the range)."""
     from pxr import Usd, UsdGeom, UsdSkel, Vt
-    from ..usd_io import open_stage
+    from ..io.usd import open_stage
 
     if isinstance(frames, str):
         try:

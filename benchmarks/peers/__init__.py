@@ -1,0 +1,1 @@
+"""Peers the benchmarks compare against (only the benchmarks use them): MakeHuman .mhclo fitting."""

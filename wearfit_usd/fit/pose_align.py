@@ -1,0 +1,283 @@
+"""Pose and similarity alignment of a rigged reference body onto a target.
+
+Everything is in internal space (Y up, metres) with row-vector 4x4 matrices
+(``p' = [p, 1] @ M``), see :mod:`wearfit_usd.transforms`.
+
+* :func:`joint_pairs` maps reference joints to target joints (through
+  :func:`wearfit_usd.joint_maps.map_joints` when available, identical names
+  otherwise).
+* :func:`pose_to_target` computes one affine skinning matrix per reference
+  joint so that, skinned with the reference's own weights, the body's bones
+  line up with the target's bind pose: each joint goes to its mapped target
+  joint and each bone is turned (and stretched along its axis) onto the
+  target bone.
+* :func:`similarity_from_pairs` (Umeyama) and :func:`surface_similarity`
+  (PCA + scaled ICP) give global scale + rigid alignments.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from ..transforms import rotation_between, rotation_part
+
+
+# --------------------------------------------------------------------------
+# joint mapping
+
+def _normalise_mapping(result, source_names, target_names) -> list[tuple[int, int]]:
+    """Accept the shapes a name mapper may return and give index pairs."""
+    src_idx = {n: i for i, n in enumerate(source_names)}
+    tgt_idx = {n: i for i, n in enumerate(target_names)}
+
+    def to_idx(v, table, names):
+        if v is None:
+            return None
+        if isinstance(v, (int, np.integer)):
+            return int(v) if 0 <= int(v) < len(names) else None
+        return table.get(str(v))
+
+    pairs = []
+    if hasattr(result, "pairs") and isinstance(result.pairs, dict):
+        # joint_maps.JointMapping: pairs = {target name: source name}
+        items = [(s, t) for t, s in result.pairs.items()]
+    elif isinstance(result, dict):
+        items = result.items()
+    elif hasattr(result, "pairs"):
+        items = result.pairs
+    else:
+        items = list(result)
+        if len(items) == len(source_names) and not all(isinstance(x, (tuple, list)) for x in items
+                                                        if x is not None):
+            items = list(zip(source_names, items))
+    for a, b in items:
+        i, j = to_idx(a, src_idx, source_names), to_idx(b, tgt_idx, target_names)
+        if i is not None and j is not None:
+            pairs.append((i, j))
+    return sorted(set(pairs))
+
+
+def joint_pairs(source_names: list[str], target_names: list[str]) -> list[tuple[int, int]]:
+    """[(source joint index, target joint index)] for joints that correspond.
+
+    Uses ``wearfit_usd.joint_maps.map_joints`` when that module exists;
+    otherwise joints with identical names are paired.
+    """
+    try:
+        from ..motion.joint_maps import map_joints  # written in its own issue
+    except ImportError:
+        map_joints = None
+    if map_joints is not None:
+        try:
+            pairs = _normalise_mapping(map_joints(list(source_names), list(target_names)),
+                                       source_names, target_names)
+            if pairs:
+                return pairs
+        except Exception:  # a mapper failure must not stop fitting
+            pass
+    tgt = {n: i for i, n in enumerate(target_names)}
+    return [(i, tgt[n]) for i, n in enumerate(source_names) if n in tgt]
+
+
+# --------------------------------------------------------------------------
+# similarity transforms
+
+def similarity_from_pairs(src: np.ndarray, dst: np.ndarray, weights: np.ndarray | None = None,
+                          allow_scale: bool = True) -> np.ndarray:
+    """Least-squares similarity (Umeyama) taking src (n, 3) onto dst (n, 3).
+
+    Returns a (4, 4) row-vector matrix ``M`` with ``dst ~ [src, 1] @ M``.
+    """
+    src = np.asarray(src, float)
+    dst = np.asarray(dst, float)
+    w = np.ones(len(src)) if weights is None else np.asarray(weights, float)
+    w = w / w.sum()
+    ms, md = w @ src, w @ dst
+    a, b = src - ms, dst - md
+    cov = (a * w[:, None]).T @ b  # (3, 3): sum w a^T b
+    u, s, vt = np.linalg.svd(cov)
+    d = np.sign(np.linalg.det(u @ vt))
+    s = s.copy()
+    s[2] *= d
+    u = u.copy()
+    u[:, 2] *= d
+    r = u @ vt  # row-vector rotation: a @ r ~ b
+    var = float(w @ np.sum(a * a, axis=1))
+    scale = float(s.sum() / var) if (allow_scale and var > 0) else 1.0
+    m = np.eye(4)
+    m[:3, :3] = scale * r
+    m[3, :3] = md - scale * ms @ r
+    return m
+
+
+def apply(m: np.ndarray, points: np.ndarray) -> np.ndarray:
+    return points @ m[:3, :3] + m[3, :3]
+
+
+def surface_similarity(src: np.ndarray, dst: np.ndarray, iterations: int = 30,
+                       sample: int = 4000, seed: int = 0) -> tuple[np.ndarray, float]:
+    """Similarity alignment of point set src onto point set dst without any
+    correspondence: centroid + RMS-radius scale, PCA axes (the four proper
+    sign choices are tried) refined by symmetric scaled ICP.
+
+    Returns ((4, 4) matrix, RMS residual in dst units).
+    """
+    rng = np.random.default_rng(seed)
+    s_pts = src[rng.choice(len(src), min(sample, len(src)), replace=False)]
+    d_pts = dst[rng.choice(len(dst), min(sample, len(dst)), replace=False)]
+    cs, cd = src.mean(0), dst.mean(0)
+    rs = np.sqrt(np.mean(np.sum((src - cs) ** 2, 1)))
+    rd = np.sqrt(np.mean(np.sum((dst - cd) ** 2, 1)))
+    _, _, vs = np.linalg.svd(src - cs, full_matrices=False)
+    _, _, vd = np.linalg.svd(dst - cd, full_matrices=False)
+    tree_d = cKDTree(dst)
+    best = (np.inf, np.eye(4))
+    candidates = [np.eye(3)]
+    for signs in ([1, 1, 1], [-1, -1, 1], [-1, 1, -1], [1, -1, -1]):
+        r = vs.T @ np.diag(signs) @ vd  # row-vector: src axes -> dst axes
+        if np.linalg.det(r) < 0:
+            r = vs.T @ np.diag(signs) @ np.diag([1, 1, -1]) @ vd
+        candidates.append(r)
+    for r in candidates:
+        m = np.eye(4)
+        m[:3, :3] = (rd / rs) * r
+        m[3, :3] = cd - (rd / rs) * cs @ r
+        for _ in range(iterations):
+            moved = apply(m, s_pts)
+            _, i_fwd = tree_d.query(moved)
+            tree_s = cKDTree(moved)
+            _, i_bwd = tree_s.query(d_pts)
+            a = np.concatenate([s_pts, s_pts[i_bwd]])
+            b = np.concatenate([dst[i_fwd], d_pts])
+            m = similarity_from_pairs(a, b)
+        moved = apply(m, s_pts)
+        d1, _ = tree_d.query(moved)
+        d2, _ = cKDTree(moved).query(d_pts)
+        err = float(np.sqrt(0.5 * (np.mean(d1 ** 2) + np.mean(d2 ** 2))))
+        if err < best[0]:
+            best = (err, m)
+    return best[1], best[0]
+
+
+# --------------------------------------------------------------------------
+# pose alignment through the skeletons
+
+def _mapped_descendants(children, mapped, j):
+    """Nearest mapped joints below j (the search stops at each mapped one)."""
+    out, stack = [], list(children[j])
+    while stack:
+        c = stack.pop()
+        if mapped[c]:
+            out.append(c)
+        else:
+            stack.extend(children[c])
+    return out
+
+
+def _kabsch(a: np.ndarray, b: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Rotation r (row-vector) minimising sum w |a r - b|^2, a, b (n, 3)."""
+    cov = (a * w[:, None]).T @ b
+    u, _, vt = np.linalg.svd(cov)
+    d = np.sign(np.linalg.det(u @ vt))
+    u = u.copy()
+    u[:, 2] *= d
+    return u @ vt
+
+
+def pose_to_target(ref_bind: np.ndarray, ref_parents: np.ndarray, target_bind: np.ndarray,
+                   pairs: list[tuple[int, int]], stretch: bool = True,
+                   frame_tolerance_deg: float = 20.0) -> dict:
+    """Skinning matrices that pose the reference rig onto the target rig.
+
+    ref_bind (J, 4, 4), target_bind (Jt, 4, 4): bind world transforms
+    (internal). ref_parents (J,). pairs: [(ref joint, target joint)].
+
+    Per reference joint j a 3x3 ``A_j = s * S_j @ D_j`` (global scale s,
+    stretch S_j along the reference bone, rotation D_j) and its new position
+    P'_j; skinning matrix ``M_j`` maps ``p -> (p - P_j) @ A_j + P'_j``.
+    D_j turns the bone towards its mapped descendants (one: smallest
+    rotation after the parent's turn, or the bind-frame change when the two
+    rigs' frames agree within ``frame_tolerance_deg``; several: Kabsch).
+    Unmapped joints ride rigidly on their parent.
+
+    Returns dict: ``skin`` (J, 4, 4) skinning matrices, ``world`` (J, 4, 4)
+    orthonormal posed joint transforms (new bind pose for the fitted body),
+    ``similarity`` (4, 4) global similarity from the joint pairs,
+    ``n_pairs``.
+    """
+    n = len(ref_parents)
+    P = ref_bind[:, 3, :3]
+    Q = target_bind[:, 3, :3]
+    Rr = rotation_part(ref_bind)
+    Rt = rotation_part(target_bind)
+    mapping = np.full(n, -1)
+    for i, j in pairs:
+        mapping[i] = j
+    mapped = mapping >= 0
+    children = [[] for _ in range(n)]
+    for j, p in enumerate(ref_parents):
+        if p >= 0:
+            children[p].append(j)
+    idx = np.flatnonzero(mapped)
+    if len(idx) >= 3:
+        sim = similarity_from_pairs(P[idx], Q[mapping[idx]])
+    elif len(idx) >= 1:
+        sim = np.eye(4)
+        sim[3, :3] = (Q[mapping[idx]] - P[idx]).mean(0)
+    else:
+        sim = np.eye(4)
+    g_scale = float(np.cbrt(np.linalg.det(sim[:3, :3])))
+    g_rot = sim[:3, :3] / g_scale
+    cos_tol = np.cos(np.radians(frame_tolerance_deg))
+
+    A = np.zeros((n, 3, 3))
+    D = np.zeros((n, 3, 3))
+    newP = np.zeros((n, 3))
+    for j in range(n):
+        p = ref_parents[j]
+        d_parent = g_rot if p < 0 else D[p]
+        if mapped[j]:
+            newP[j] = Q[mapping[j]]
+        elif p >= 0:
+            newP[j] = (P[j] - P[p]) @ A[p] + newP[p]
+        else:
+            newP[j] = apply(sim, P[j][None])[0]
+        desc = _mapped_descendants(children, mapped, j) if mapped[j] else []
+        dr = P[desc] - P[j] if desc else np.zeros((0, 3))
+        dt = Q[mapping[desc]] - Q[mapping[j]] if desc else np.zeros((0, 3))
+        keep = (np.linalg.norm(dr, axis=1) > 1e-6) & (np.linalg.norm(dt, axis=1) > 1e-6)
+        dr, dt = dr[keep], dt[keep]
+        stretch_m = np.eye(3)
+        d_frame = Rr[j].T @ Rt[mapping[j]] if mapped[j] else None
+        if len(dr) == 1:
+            u = dr[0] / np.linalg.norm(dr[0])
+            v = dt[0] / np.linalg.norm(dt[0])
+            base = d_parent
+            if d_frame is not None and float(u @ d_frame @ v) > cos_tol:
+                base = d_frame
+            D[j] = base @ rotation_between(u @ base, v)
+            if stretch:
+                k = float(np.clip(np.linalg.norm(dt[0]) / (g_scale * np.linalg.norm(dr[0])), 0.5, 2.0))
+                stretch_m = np.eye(3) + (k - 1.0) * np.outer(u, u)
+        elif len(dr) >= 2:
+            a = dr / np.linalg.norm(dr, axis=1, keepdims=True)
+            b = dt / np.linalg.norm(dt, axis=1, keepdims=True)
+            w = np.linalg.norm(dr, axis=1)
+            D[j] = _kabsch(a, b, w)
+        else:
+            D[j] = d_parent
+            if d_frame is not None:
+                # a mapped leaf (head, toes): trust the target frame if it is
+                # close to what the parent's turn gives
+                rel = d_parent.T @ d_frame
+                if (np.trace(rel) - 1) / 2 > cos_tol:
+                    D[j] = d_frame
+        A[j] = g_scale * stretch_m @ D[j]
+    skin = np.tile(np.eye(4), (n, 1, 1))
+    skin[:, :3, :3] = A
+    skin[:, 3, :3] = newP - np.einsum("ni,nij->nj", P, A)
+    world = np.tile(np.eye(4), (n, 1, 1))
+    world[:, :3, :3] = Rr @ D
+    world[:, 3, :3] = newP
+    return {"skin": skin, "world": world, "similarity": sim, "n_pairs": int(mapped.sum()),
+            "positions": newP}

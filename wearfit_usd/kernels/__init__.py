@@ -1,0 +1,1 @@
+"""Compiled inner loops (numba, optional) with their numpy twins."""

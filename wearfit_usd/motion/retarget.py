@@ -1,0 +1,332 @@
+"""Retarget BVH motion onto a USD skeleton (rotations transfer, lengths stay).
+
+For every target joint mapped to a clip joint (see :mod:`joint_maps`):
+
+* ``G(f)`` = the clip joint's world rotation at frame f relative to the
+  clip's rest (all channels zero; the rest rotations are the identity in
+  BVH), a world-space rotation (row-vector 3x3).
+* ``Q`` = the per-bone rest correction: the smallest rotation taking the
+  clip's rest bone direction (joint -> next mapped joint down the chain) to
+  the target's bind bone direction. Joints without a usable bone direction
+  (hands with several fingers, zero-length bones) inherit their parent's Q.
+* ``mode="direction"`` (default): ``W(f) = B @ Q.T @ G(f)``: each target
+  bone points exactly where the clip's bone points, the twist about the bone
+  follows the clip relative to the target's bind frame. Rest-pose
+  differences (T-pose clip, A-pose body; CMU's splayed rest legs) do not
+  distort the motion: hanging arms hang, walking legs stay under the hips.
+  At the clip's rest the body takes the clip's rest *shape* (a T-pose clip's
+  rest frame raises the arms).
+* ``mode="bind"``: ``W(f) = B @ Q.T @ G(f) @ Q``: the clip's motion relative
+  to its rest, applied in the target's bind frame with the rest correction;
+  at the clip's rest the body is exactly in its bind pose, but the rest-pose
+  difference stays in every frame (measured on cmu_07_01 onto ref_male: with
+  the zero rest the feet cross by 24-30 cm because CMU's rest legs splay
+  20 degrees; with the T-pose frame as rest the hands hang 29 cm inside the
+  torso because the A-pose arms are 48 degrees lower than the T-pose).
+
+Unmapped target joints keep their bind-relative local rotation. Joint
+positions come from the target's bind offsets (its bone lengths). The joint
+mapped to the clip's root moves with the clip's root translation scaled by
+the hip-height ratio (target / clip), starting above the target's bind
+position, with the clip's floor put on the target's floor.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..io.bvh import BVHMotion
+from ..errors import InputError
+from .joint_maps import JointMapping, map_joints, normalize
+from ..model import Skeleton
+from ..transforms import (invert, matrix_from_quat, quat_from_matrix, quat_slerp,
+                         rotation_between, rotation_part)
+
+
+@dataclass
+class Retargeted:
+    """Per-frame joint transforms of a target skeleton.
+
+    world: (F, J, 4, 4) internal world transforms (metres, Y up), usable as
+        ``skinning.skin_mesh(mesh, skeleton, world)``.
+    local: (F, J, 4, 4) ``skeleton.local_from_world(world)`` (skeleton units,
+        for a UsdSkel SkelAnimation).
+    times: (F,) seconds from the first retargeted frame; fps: frames/second.
+    source_frames: (F,) the (fractional) clip frame of each output frame.
+    """
+    world: np.ndarray
+    local: np.ndarray
+    fps: float
+    times: np.ndarray
+    joint_names: list[str]
+    mapping: JointMapping
+    source_frames: np.ndarray
+    hip_height_ratio: float
+    report: dict = field(default_factory=dict)
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.world.shape[0])
+
+    def positions(self) -> np.ndarray:
+        """(F, J, 3) joint world positions, metres."""
+        return self.world[:, :, 3, :3]
+
+
+def _descendants(parents: np.ndarray) -> list[list[int]]:
+    """Per joint, its descendants in breadth-first order."""
+    children: list[list[int]] = [[] for _ in parents]
+    for j, p in enumerate(parents):
+        if p >= 0:
+            children[p].append(j)
+    out = []
+    for j in range(len(parents)):
+        order, queue = [], list(children[j])
+        while queue:
+            c = queue.pop(0)
+            order.append(c)
+            queue.extend(children[c])
+        out.append(order)
+    return out
+
+
+def _depth(parents):
+    d = np.zeros(len(parents), dtype=int)
+    for j, p in enumerate(parents):
+        d[j] = 0 if p < 0 else d[p] + 1
+    return d
+
+
+def resample_clip(grot: np.ndarray, root_pos: np.ndarray, src_fps: float, fps: float):
+    """Resample clip world rotations (F, J, 3, 3) by quaternion slerp and root
+    positions (F, 3) linearly to ``fps``. Returns (rot, pos, frames) with
+    frames (F',) the fractional source frame of each output frame."""
+    n = grot.shape[0]
+    duration = (n - 1) / src_fps
+    count = int(np.floor(duration * fps + 1e-9)) + 1
+    frames = np.arange(count) * (src_fps / fps)
+    frames = np.minimum(frames, n - 1)
+    i0 = np.floor(frames).astype(int)
+    i1 = np.minimum(i0 + 1, n - 1)
+    t = frames - i0
+    q = quat_from_matrix(grot)  # (F, J, 4)
+    qs = quat_slerp(q[i0], q[i1], np.broadcast_to(t[:, None], (count, grot.shape[1])))
+    pos = root_pos[i0] * (1 - t)[:, None] + root_pos[i1] * t[:, None]
+    return matrix_from_quat(qs), pos, frames
+
+
+def retarget(motion: BVHMotion, skeleton: Skeleton, mapping: JointMapping | dict | None = None,
+             start: int = 0, end: int | None = None, fps: float | None = None,
+             mode: str = "direction", rest="zero") -> Retargeted:
+    """Retarget ``motion`` onto ``skeleton``.
+
+    mapping: a :class:`JointMapping`, a {target: source} dict (user map
+        applied over the automatic one), or None (automatic, by names).
+    start, end: clip frame range [start, end) (``start=1`` skips CMU's
+        synthetic T-pose frame 0).
+    fps: None keeps the clip's rate; otherwise resample (slerp rotations,
+        linear root translation).
+    mode: "direction" (default: each target bone points along the clip's
+        bone, so a T-pose clip on an A-pose body gives natural motion) or
+        "bind" (the clip's rest maps exactly to the target's bind pose; the
+        rest-pose difference then persists through the motion); see the
+        module docstring.
+    rest: the clip's rest pose: "zero" (all channels zero, BVH's rest) or a
+        frame index (e.g. 0 for CMU's synthetic T-pose frame).
+    Returns :class:`Retargeted` with (F, J, 4, 4) ``world`` and ``local``.
+    """
+    if mode not in ("bind", "direction"):
+        raise ValueError(f"mode must be 'bind' or 'direction', got {mode!r}")
+    n_all = motion.n_frames
+    end = n_all if end is None else int(end)
+    start = int(start)
+    if start < 0 or end > n_all or start >= end:
+        raise InputError(motion.path, f"frame range [{start}, {end}) is empty or outside the clip's "
+                                      f"{n_all} frames")
+    if fps is not None and not fps > 0:
+        raise InputError(motion.path, f"fps must be > 0, got {fps}")
+    tnames = list(skeleton.joint_names)
+    if mapping is None:
+        mapping = map_joints(motion.joint_names, tnames)
+    elif isinstance(mapping, dict):
+        mapping = map_joints(motion.joint_names, tnames, user_map=mapping)
+    sidx = {n: i for i, n in enumerate(motion.joint_names)}
+    tparents = np.asarray(skeleton.parents)
+    J = len(tnames)
+    src_of = np.full(J, -1, dtype=int)
+    for t, s in mapping.pairs.items():
+        if t in tnames and s in sidx:
+            src_of[tnames.index(t)] = sidx[s]
+    if not (src_of >= 0).any():
+        raise InputError(motion.path, f"no joint of the clip maps onto the skeleton "
+                                      f"{skeleton.path or ''} (clip joints e.g. "
+                                      f"{motion.joint_names[:5]}, skeleton joints e.g. {tnames[:5]}); "
+                                      "give a JSON joint map")
+    sroot = int(np.flatnonzero(motion.parents < 0)[0])
+    # target joint that carries the root translation: mapped to the clip root,
+    # else the shallowest mapped joint
+    mapped = np.flatnonzero(src_of >= 0)
+    troot_cand = [t for t in mapped if src_of[t] == sroot]
+    tdepth = _depth(tparents)
+    troot = troot_cand[0] if troot_cand else int(mapped[np.argmin(tdepth[mapped])])
+
+    # ---- clip kinematics
+    frames = np.arange(start, end)
+    grot, gpos = motion.global_rotations_positions(frames)  # (F, Js, 3, 3), (F, Js, 3)
+    root_pos = gpos[:, sroot]
+    src_fps = motion.fps
+    if fps is None or abs(fps - src_fps) < 1e-9:
+        out_fps = src_fps
+        src_frames = frames.astype(float)
+    else:
+        out_fps = float(fps)
+        grot, root_pos, rel = resample_clip(grot, root_pos, src_fps, out_fps)
+        src_frames = start + rel
+    F = grot.shape[0]
+
+    # ---- rest data
+    if rest == "zero":
+        srest = motion.rest_global_transforms()[:, 3, :3]  # (Js, 3)
+        r0 = None
+    else:
+        r0, p0 = motion.global_rotations_positions([int(rest)])
+        r0, srest = r0[0], p0[0]
+        grot = np.swapaxes(r0, -1, -2)[None] @ grot  # relative to that rest
+
+    bind = np.asarray(skeleton.bind_world, dtype=np.float64)
+    bpos = bind[:, 3, :3]
+    bscale = np.linalg.norm(bind[:, :3, :3], axis=-1).mean(axis=-1)  # (J,) uniform scale
+    brot = rotation_part(bind)  # (J, 3, 3)
+
+    # ---- per-bone rest correction Q (world, row-vector: d_clip @ Q = d_target)
+    desc = _descendants(tparents)
+    Q = np.broadcast_to(np.eye(3), (J, 3, 3)).copy()
+    has_dir = np.zeros(J, dtype=bool)
+    for t in range(J):
+        if src_of[t] < 0:
+            continue
+        side_t = normalize(tnames[t])[0]
+        cands = [d for d in desc[t] if src_of[d] >= 0]
+        # prefer joints on the same side / the centre line, then shallow ones
+        cands.sort(key=lambda d: (normalize(tnames[d])[0] != side_t, tdepth[d]))
+        for d in cands:
+            vt = bpos[d] - bpos[t]
+            vs = srest[src_of[d]] - srest[src_of[t]]
+            if np.linalg.norm(vt) > 1e-3 and np.linalg.norm(vs) > 1e-3:
+                Q[t] = rotation_between(vs, vt)
+                has_dir[t] = True
+                break
+    for t in range(J):  # inherit the parent's correction (parents come first)
+        if not has_dir[t] and tparents[t] >= 0:
+            Q[t] = Q[tparents[t]]
+
+    # ---- hip heights and floors
+    floor_t = float(bpos[:, 1].min())
+    hh_t = float(bpos[troot, 1] - floor_t)
+    # clip: leg length in the rest pose, measured like the target's bind pose
+    # (root height above the lowest joint), made robust to splayed rest legs
+    # by using the chain lengths of the mapped leg
+    hh_c = _clip_hip_height(motion, srest, sroot)
+    tfoot = _find_foot(tnames, tparents, troot)
+    if tfoot is not None:
+        hh_t = _chain_height(bpos, tparents, troot, tfoot)
+    ratio = hh_t / hh_c if hh_c > 1e-6 else 1.0
+    # clip floor: the lowest joint over the retargeted frames
+    floor_c = float(gpos[..., 1].min())
+
+    # ---- target FK over frames (loop over joints)
+    W = np.empty((F, J, 4, 4))
+    W[..., 3] = [0.0, 0.0, 0.0, 1.0]
+    rot = np.empty((F, J, 3, 3))
+    pos = np.empty((F, J, 3))
+    inv_bind = invert(bind)
+    for t in range(J):
+        p = tparents[t]
+        s = src_of[t]
+        if s >= 0:
+            g = grot[:, s]
+            if mode == "bind":
+                rot[:, t] = brot[t] @ Q[t].T @ g @ Q[t]
+            else:
+                rot[:, t] = brot[t] @ Q[t].T @ g
+        elif p >= 0:
+            rot[:, t] = (brot[t] @ brot[p].T) @ rot[:, p]
+        else:
+            rot[:, t] = brot[t]
+        if t == troot:
+            d = root_pos - root_pos[:1]
+            pos[:, t, 0] = bpos[t, 0] + ratio * d[:, 0]
+            pos[:, t, 2] = bpos[t, 2] + ratio * d[:, 2]
+            pos[:, t, 1] = floor_t + ratio * (root_pos[:, 1] - floor_c)
+        elif p >= 0:
+            off = (bind[t] @ inv_bind[p])[3, :3]  # bind offset in the parent's frame
+            pos[:, t] = np.einsum("i,fij->fj", off, W[:, p, :3, :3]) + pos[:, p]
+        else:
+            pos[:, t] = bpos[t]
+        W[:, t, :3, :3] = bscale[t] * rot[:, t]
+        W[:, t, 3, :3] = pos[:, t]
+        W[:, t, :3, 3] = 0.0
+    local = skeleton.local_from_world(W)
+    report = mapping.report()
+    report.update({"mode": mode, "hip_height_ratio": ratio, "root_joint": tnames[troot],
+                   "frames": F, "fps": out_fps, "source_range": [start, end]})
+    return Retargeted(world=W, local=local, fps=out_fps, times=np.arange(F) / out_fps,
+                      joint_names=tnames, mapping=mapping, source_frames=src_frames,
+                      hip_height_ratio=ratio, report=report)
+
+
+def _clip_hip_height(motion: BVHMotion, rest: np.ndarray, root: int) -> float:
+    """Standing hip height of the clip skeleton (m): vertical root offset to
+    the thigh plus the thigh, shin and foot chain lengths, so a rest pose
+    with splayed legs (CMU) is not under-estimated."""
+    foot = _find_foot(motion.joint_names, motion.parents, root)
+    if foot is None:
+        return float(rest[root, 1] - rest[:, 1].min())
+    return _chain_height(rest, motion.parents, root, foot)
+
+
+def _find_foot(names, parents, root):
+    """Index of the lowest-level joint of a leg in the rest pose below the
+    root: the deepest joint of the leg subtree before the toes (by role)."""
+    from .joint_maps import roles
+    r = roles(names)
+    for key in ("foot_l", "foot_r"):
+        if key in r:
+            return names.index(r[key])
+    return None
+
+
+def _chain_height(pos, parents, root, foot) -> float:
+    """root height above the foot's lowest descendant, with the leg bones
+    (root .. foot) stretched straight down: vertical root->first leg joint
+    offset + sum of bone lengths + foot height above its lowest descendant."""
+    chain = []
+    j = foot
+    while j != root and j >= 0:
+        chain.append(j)
+        j = parents[j]
+    if j != root:
+        return float(pos[root, 1] - pos[:, 1].min())
+    chain = chain[::-1]  # first leg joint .. foot
+    seg = 0.0
+    first = None
+    for a, b in zip(chain[:-1], chain[1:]):
+        length = float(np.linalg.norm(pos[b] - pos[a]))
+        if first is None and length > 1e-6:
+            first = a
+        seg += length
+    first = chain[0] if first is None else first
+    top = float(pos[root, 1] - pos[first, 1])
+    below = [d for d in range(len(parents)) if _is_desc(parents, d, foot)]
+    foot_h = float(pos[foot, 1] - min([pos[d, 1] for d in below] + [pos[foot, 1]]))
+    return top + seg + foot_h
+
+
+def _is_desc(parents, d, a) -> bool:
+    j = parents[d]
+    while j >= 0:
+        if j == a:
+            return True
+        j = parents[j]
+    return False
