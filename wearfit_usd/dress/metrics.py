@@ -39,7 +39,7 @@ def flip_and_stretch(ref_pts: np.ndarray, new_pts: np.ndarray, faces: np.ndarray
     rotation, opposes the new normal; an edge is over-stretched when its length
     ratio leaves [0.8, 1.25] x the range of its body triangle's edge ratios.
     """
-    from .redress import edges
+    from ..geometry.mesh import edges
     fr, ft = _frames(ref_body, body_faces), _frames(fit_body, body_faces)
     t = tri0[faces[:, 0]]
     rot = np.einsum("tji,tjk->tik", fr[t], ft[t])  # row-vector rotation ref -> target
@@ -151,7 +151,7 @@ def shape_change(ref_pts: np.ndarray, new_pts: np.ndarray, faces: np.ndarray, tr
     :func:`redress.edges`.
     """
     from . import untangle as U
-    from .redress import edges
+    from ..geometry.mesh import edges
     ref_pts = np.asarray(ref_pts, dtype=np.float64)
     new_pts = np.asarray(new_pts, dtype=np.float64)
     tri0 = triangles[:, 0] if tri0 is None else tri0
@@ -203,7 +203,7 @@ def rigid_edge_check(ref_pts: np.ndarray, new_pts: np.ndarray, e: np.ndarray, ra
     "over_pct": % of the rigid edges, "residual_mm": largest distance (mm)
     of a group vertex from the best-fit similarity image of its reference
     position}."""
-    from .redress import similarity_fit
+    from ..geometry.mesh import similarity_fit
     group = np.full(len(ref_pts), -1)
     scale = np.ones(len(rigid_groups or []))
     residual = 0.0

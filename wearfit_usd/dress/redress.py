@@ -31,6 +31,7 @@ from . import regions as R
 from .binding import Binding, bind, local_signed_distance, rebind
 from .body_stretch import skin_range, stretch_range, vertex_stretch
 from ..geometry.closest import SurfaceQuery, VertexNormals
+from ..geometry.mesh import adjacency, components, edges, similarity_fit
 from ..errors import GeometryError, InputError
 from ..kernels.compiled import assign_rows
 from ..model import Character, Mesh
@@ -38,56 +39,6 @@ from ..progress import debug, info, warn
 from .rigid_parts import RigidParts
 
 FAR_FROM_BODY = 0.5  # m: items farther than this from the body are suspicious
-
-
-# --------------------------------------------------------------------------
-# mesh helpers
-
-def adjacency(faces: np.ndarray, n: int) -> sp.csr_matrix:
-    """(n, n) symmetric 0/1 vertex adjacency of a triangle mesh."""
-    f = np.asarray(faces, dtype=np.int64)
-    i = np.concatenate([f[:, 0], f[:, 1], f[:, 2], f[:, 1], f[:, 2], f[:, 0]])
-    j = np.concatenate([f[:, 1], f[:, 2], f[:, 0], f[:, 0], f[:, 1], f[:, 2]])
-    a = sp.csr_matrix((np.ones(len(i)), (i, j)), shape=(n, n))
-    a.data[:] = 1.0
-    return a
-
-
-def components(faces: np.ndarray, n: int) -> np.ndarray:
-    """(n,) connected-component label of each vertex."""
-    return connected_components(adjacency(faces, n), directed=False)[1]
-
-
-def edges(faces: np.ndarray) -> np.ndarray:
-    """(E, 2) unique undirected edges."""
-    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]).astype(np.int64)
-    if len(e) == 0:
-        return e.reshape(0, 2)
-    e.sort(axis=1)
-    n = int(e.max()) + 1
-    key = np.unique(e[:, 0] * n + e[:, 1])  # 1-D keys: ~10x faster than unique(axis=0), same order
-    return np.stack([key // n, key % n], axis=1)
-
-
-def similarity_fit(src: np.ndarray, dst: np.ndarray, weights: np.ndarray | None = None,
-                   scale: bool = True):
-    """Best-fit similarity (Umeyama/Kabsch): dst ~ s * src @ rot + t.
-
-    src, dst (P, 3); weights (P,). Returns (s, rot (3, 3) row-vector, t (3,)).
-    """
-    w = np.ones(len(src)) if weights is None else np.asarray(weights, float)
-    w = w / w.sum()
-    ms = w @ src
-    md = w @ dst
-    a = src - ms
-    b = dst - md
-    h = (a * w[:, None]).T @ b
-    u, sv, vt = np.linalg.svd(h)
-    d = np.sign(np.linalg.det(u @ vt))
-    dm = np.array([1.0, 1.0, d])
-    rot = (u * dm) @ vt
-    s = float((sv * dm).sum() / max(w @ np.einsum("ij,ij->i", a, a), 1e-300)) if scale else 1.0
-    return s, rot, md - s * ms @ rot
 
 
 # --------------------------------------------------------------------------

@@ -1,0 +1,76 @@
+"""Mesh topology and shape helpers shared by every stage (plain numpy).
+
+- :func:`adjacency`, :func:`components`, :func:`edges`: vertex adjacency,
+  connected components and unique edges of a triangle mesh;
+- :func:`nondegenerate`: the one test for zero-area triangles;
+- :func:`similarity_fit`: the one best-fit similarity (Umeyama 1991).
+"""
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
+
+DEGENERATE_REL = 1e-12  # a triangle whose doubled area is below this x the mesh's median is degenerate
+
+
+
+def adjacency(faces: np.ndarray, n: int) -> sp.csr_matrix:
+    """(n, n) symmetric 0/1 vertex adjacency of a triangle mesh."""
+    f = np.asarray(faces, dtype=np.int64)
+    i = np.concatenate([f[:, 0], f[:, 1], f[:, 2], f[:, 1], f[:, 2], f[:, 0]])
+    j = np.concatenate([f[:, 1], f[:, 2], f[:, 0], f[:, 0], f[:, 1], f[:, 2]])
+    a = sp.csr_matrix((np.ones(len(i)), (i, j)), shape=(n, n))
+    a.data[:] = 1.0
+    return a
+
+
+def components(faces: np.ndarray, n: int) -> np.ndarray:
+    """(n,) connected-component label of each vertex."""
+    return connected_components(adjacency(faces, n), directed=False)[1]
+
+
+def edges(faces: np.ndarray) -> np.ndarray:
+    """(E, 2) unique undirected edges."""
+    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]).astype(np.int64)
+    if len(e) == 0:
+        return e.reshape(0, 2)
+    e.sort(axis=1)
+    n = int(e.max()) + 1
+    key = np.unique(e[:, 0] * n + e[:, 1])  # 1-D keys: ~10x faster than unique(axis=0), same order
+    return np.stack([key // n, key % n], axis=1)
+
+
+def similarity_fit(src: np.ndarray, dst: np.ndarray, weights: np.ndarray | None = None,
+                   scale: bool = True):
+    """Best-fit similarity (Umeyama/Kabsch): dst ~ s * src @ rot + t.
+
+    src, dst (P, 3); weights (P,). Returns (s, rot (3, 3) row-vector, t (3,)).
+    """
+    w = np.ones(len(src)) if weights is None else np.asarray(weights, float)
+    w = w / w.sum()
+    ms = w @ src
+    md = w @ dst
+    a = src - ms
+    b = dst - md
+    h = (a * w[:, None]).T @ b
+    u, sv, vt = np.linalg.svd(h)
+    d = np.sign(np.linalg.det(u @ vt))
+    dm = np.array([1.0, 1.0, d])
+    rot = (u * dm) @ vt
+    s = float((sv * dm).sum() / max(w @ np.einsum("ij,ij->i", a, a), 1e-300)) if scale else 1.0
+    return s, rot, md - s * ms @ rot
+
+
+def nondegenerate(points: np.ndarray, faces: np.ndarray, rel: float = DEGENERATE_REL) -> np.ndarray:
+    """(T,) bool: triangles whose doubled area exceeds ``rel`` x the median
+    doubled area of the mesh (zero-area and sliver triangles are False).
+
+    points (N, 3), faces (T, 3) int.
+    """
+    p = np.asarray(points, dtype=np.float64)
+    f = np.asarray(faces)
+    a2 = np.linalg.norm(np.cross(p[f[:, 1]] - p[f[:, 0]], p[f[:, 2]] - p[f[:, 0]]), axis=1)
+    if len(a2) == 0:
+        return np.zeros(0, dtype=bool)
+    return a2 > rel * max(float(np.median(a2)), 1e-300)
