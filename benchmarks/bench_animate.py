@@ -75,7 +75,7 @@ def binding_microbench(repeat: int = 300) -> list[dict]:
     and all of it (21k). The LBS-baseline per-frame
     cost (items skinned with weights copied from the body) in the same run."""
     from wearfit_usd.dress.binding import bind
-    from wearfit_usd.kernels.compiled import HAVE_NUMBA
+    from wearfit_usd.kernels import HAVE_NUMBA
     from wearfit_usd.motion.skinning import Skinner, skinning_matrices
     from wearfit_usd.animate.skin_transfer import transfer_weights
     from wearfit_usd.io.usd import read_character

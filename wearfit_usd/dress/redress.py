@@ -33,7 +33,7 @@ from .body_stretch import skin_range, stretch_range, vertex_stretch
 from ..geometry.closest import SurfaceQuery, VertexNormals
 from ..geometry.mesh import adjacency, components, edges, similarity_fit
 from ..errors import GeometryError, InputError
-from ..kernels.compiled import assign_rows
+from ..kernels import assign_rows
 from ..model import Character, Mesh
 from ..progress import debug, info, warn
 from .rigid_parts import RigidParts

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from ..kernels.compiled import HAVE_NUMBA, _similarity_place, _similarity_transforms, assign_rows
+from ..kernels import HAVE_NUMBA, _similarity_place, _similarity_transforms, assign_rows
 
 
 class RigidParts:

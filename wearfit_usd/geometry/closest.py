@@ -16,9 +16,9 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
-from ..kernels.compiled import HAVE_NUMBA, closest_candidates, closest_signed
-from ..kernels.compiled import face_normals as _compiled_face_normals
-from ..kernels.compiled import vertex_normals as _compiled_vertex_normals
+from ..kernels import HAVE_NUMBA, closest_candidates, closest_signed
+from ..kernels import face_normals as _compiled_face_normals
+from ..kernels import vertex_normals as _compiled_vertex_normals
 
 # feature codes returned by closest_point_on_triangles
 FACE, EDGE01, EDGE12, EDGE20, VERT0, VERT1, VERT2 = range(7)
