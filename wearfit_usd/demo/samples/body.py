@@ -15,6 +15,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, fields
 
 import numpy as np
+import scipy.sparse as sp
 
 from ...model import Character, Mesh, Skeleton
 from ...io.usd import triangulate
@@ -286,7 +287,6 @@ def skin_weights(lay: BodyLayout, points: np.ndarray, quads: np.ndarray, k: int 
                  diffuse: int = 22):
     """(N, k) joint indices and weights: one-hot on the bone of the nearest
     primitive, diffused over the mesh ``diffuse`` times, top ``k`` kept."""
-    import scipy.sparse as sp
     lab = lay.solid.labels(points)
     bone_of_prim = np.array([JOINT_NAMES.index(b) for b in lay.solid.bones()])
     n = len(points)
