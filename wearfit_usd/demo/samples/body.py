@@ -308,8 +308,7 @@ def skin_weights(lay: BodyLayout, points: np.ndarray, quads: np.ndarray, k: int 
 def mesh_solid(solid: Solid, resolution: float, relax_iters: int = 4):
     """Mesh a solid: surface nets on a grid of ``resolution`` metres, then
     projection onto f = 0 and relaxation. Returns points (N, 3), quads (Q, 4)."""
-    los, his = zip(*solid._boxes)
-    # the boxes include the evaluation band; shrink back to the solid plus two cells
+    # the solid's bounds plus a few cells;
     # an irrational grid offset keeps symmetric features off grid diagonals
     lo = np.min([p.bounds(0.0)[0] for p in solid.primitives], axis=0) - (3 + 0.318) * resolution
     hi = np.max([p.bounds(0.0)[1] for p in solid.primitives], axis=0) + 3 * resolution
