@@ -18,14 +18,17 @@ import numpy as np
 from ..geometry.closest import vertex_normals
 from ..model import Mesh, Skeleton
 from ..transforms import invert, stage_to_internal, transform_points
+from ..types import Points
 
 
-def vt_points(points):
+def vt_points(points: Points):
+    """(N, 3) array -> ``Vt.Vec3fArray`` (float32)."""
     from pxr import Vt
     return Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(points, dtype=np.float32))
 
 
-def vt_extent(points):
+def vt_extent(points: Points):
+    """``Vt.Vec3fArray`` [min, max] corners of (N, 3) points (float32)."""
     from pxr import Vt
     # column by column: numpy's axis-0 reduction of an (M, 3) array is ~8x slower
     ext = np.array([[points[:, i].min() for i in range(3)], [points[:, i].max() for i in range(3)]],
@@ -61,6 +64,8 @@ def prim_name(name: str) -> str:
 
 
 def author_mesh_topology(usd_mesh, mesh: Mesh):
+    """Author ``mesh``'s polygons, orientation, double-sidedness, primvars
+    and display colour on ``usd_mesh`` (a ``UsdGeom.Mesh``); no points."""
     from pxr import Sdf, UsdGeom, Vt
     usd_mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(mesh.face_vertex_counts.astype(np.int32)))
     usd_mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(mesh.face_vertex_indices.astype(np.int32)))
@@ -106,26 +111,25 @@ def author_skeleton(layout: StageLayout, skeleton: Skeleton):
 
 
 def author_body(layout: StageLayout, body: Mesh, skeleton: Skeleton | None):
-    from pxr import Gf, UsdGeom, UsdSkel, Vt
+    """Define the body Mesh (``layout.body_path``) from internal-space
+    ``body``, skinned to the layout's skeleton when ``skeleton`` is given
+    and the body has influences. Returns the ``UsdGeom.Mesh``."""
+    from pxr import UsdGeom
     pts = transform_points(body.points, layout.from_internal)
     m = UsdGeom.Mesh.Define(layout.stage, layout.body_path)
     m.CreatePointsAttr(vt_points(pts))
     m.CreateExtentAttr(vt_extent(pts))
     author_mesh_topology(m, body)
     if skeleton is not None and body.joint_indices is not None:
-        api = UsdSkel.BindingAPI.Apply(m.GetPrim())
-        api.CreateSkeletonRel().SetTargets([layout.skel_path])
-        k = body.joint_indices.shape[1]
-        api.CreateJointIndicesPrimvar(False, k).Set(
-            Vt.IntArray.FromNumpy(body.joint_indices.astype(np.int32).ravel()))
-        api.CreateJointWeightsPrimvar(False, k).Set(
-            Vt.FloatArray.FromNumpy(body.joint_weights.astype(np.float32).ravel()))
-        api.CreateGeomBindTransformAttr(Gf.Matrix4d(1.0))
+        author_skin_binding(layout, m, body)
     return m
 
 
-def author_static_item(layout, item: Mesh, skeleton: Skeleton | None):
-    from pxr import Gf, UsdGeom, UsdSkel, Vt
+def author_static_item(layout: StageLayout, item: Mesh, skeleton: Skeleton | None):
+    """Define an item Mesh from internal-space ``item``: a plain mesh under
+    ``/Root/Items``, or skinned inside the SkelRoot when ``skeleton`` is given
+    and the item has influences. Returns the ``UsdGeom.Mesh``."""
+    from pxr import UsdGeom
     if skeleton is not None and item.joint_indices is not None:
         ipath = layout.skel_root.AppendChild(prim_name(item.name))
     else:
@@ -139,12 +143,20 @@ def author_static_item(layout, item: Mesh, skeleton: Skeleton | None):
         m.CreateNormalsAttr(vt_points(vertex_normals(pts, item.faces) * (-1 if item.left_handed else 1)))
         m.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
     if skeleton is not None and item.joint_indices is not None:
-        api = UsdSkel.BindingAPI.Apply(m.GetPrim())
-        api.CreateSkeletonRel().SetTargets([layout.skel_path])
-        k = item.joint_indices.shape[1]
-        api.CreateJointIndicesPrimvar(False, k).Set(
-            Vt.IntArray.FromNumpy(item.joint_indices.astype(np.int32).ravel()))
-        api.CreateJointWeightsPrimvar(False, k).Set(
-            Vt.FloatArray.FromNumpy(item.joint_weights.astype(np.float32).ravel()))
-        api.CreateGeomBindTransformAttr(Gf.Matrix4d(1.0))
+        author_skin_binding(layout, m, item)
     return m
+
+
+def author_skin_binding(layout: StageLayout, usd_mesh, mesh: Mesh) -> None:
+    """Bind ``usd_mesh`` to the layout's skeleton with ``mesh``'s (N, K)
+    joint indices and weights (vertex primvars, identity geomBindTransform:
+    the points are already in bind pose)."""
+    from pxr import Gf, UsdSkel, Vt
+    api = UsdSkel.BindingAPI.Apply(usd_mesh.GetPrim())
+    api.CreateSkeletonRel().SetTargets([layout.skel_path])
+    k = mesh.joint_indices.shape[1]
+    api.CreateJointIndicesPrimvar(False, k).Set(
+        Vt.IntArray.FromNumpy(mesh.joint_indices.astype(np.int32).ravel()))
+    api.CreateJointWeightsPrimvar(False, k).Set(
+        Vt.FloatArray.FromNumpy(mesh.joint_weights.astype(np.float32).ravel()))
+    api.CreateGeomBindTransformAttr(Gf.Matrix4d(1.0))
