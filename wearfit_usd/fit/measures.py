@@ -30,9 +30,10 @@ def _unit(v: np.ndarray) -> np.ndarray:
 
 class SurfaceIndex:
     """Closest-point queries on a fixed triangle mesh, for fitting: a thin
-    layer over :class:`~wearfit_usd.geometry.closest.SurfaceQuery` that leaves degenerate
-    (zero-area, :func:`~wearfit_usd.geometry.mesh.nondegenerate`) triangles out and reports original face ids and the
-    interpolated unit vertex normal at the closest point.
+    layer over :class:`~wearfit_usd.geometry.closest.SurfaceQuery` that
+    leaves degenerate triangles out (zero-area, see
+    :func:`~wearfit_usd.geometry.mesh.nondegenerate`) and reports original
+    face ids and the interpolated unit vertex normal at the closest point.
     """
 
     def __init__(self, points: Points, faces: Faces, k: int = 6):
