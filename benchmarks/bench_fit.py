@@ -8,7 +8,7 @@ closest-point queries (independent of our own code), in both directions:
 fitted surface, each from area-uniform surface samples (primary; columns
 without suffix) and from the mesh vertices (``_vtx`` columns). ``flipped`` =
 triangles whose normal turned by 90 degrees or more relative to the start
-(``body_fit.count_flipped``). ``seconds`` excludes the metrics.
+(``fit.measures.count_flipped``). ``seconds`` excludes the metrics.
 
     python3 -m benchmarks.bench_fit [--full]     (or python3 benchmarks/bench_fit.py)
 """
@@ -43,7 +43,7 @@ def _metrics(points, faces, target) -> dict:
     import trimesh
     from trimesh.proximity import closest_point
 
-    from wearfit_usd.fit.body_fit import surface_samples
+    from wearfit_usd.fit.measures import surface_samples
     tp, tf = target.body.points, target.body.faces
     tm_t = trimesh.Trimesh(tp, tf, process=False)
     tm_f = trimesh.Trimesh(points, faces, process=False)
@@ -93,7 +93,7 @@ def _peer(start_points, faces, target):
 
 
 def run(full: bool, out_dir: Path) -> list[dict]:
-    from wearfit_usd.fit.body_fit import count_flipped
+    from wearfit_usd.fit.measures import count_flipped
     from wearfit_usd.io.usd import read_character
 
     refs = {"male": read_character(USD / "ref_male.usda"),

@@ -4,9 +4,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from wearfit_usd.io.bvh import (CMU_UNIT_M, euler_to_matrix, matrix_to_euler, read_bvh,
-                             write_bvh)
 from wearfit_usd.errors import BVHError
+from wearfit_usd.io.bvh import CMU_UNIT_M, read_bvh, write_bvh
+from wearfit_usd.transforms import euler_to_matrix, matrix_to_euler
 
 # data card table: file -> (frames, joints, end sites, channels, fps, rotation order histogram)
 CARD = {

@@ -3,7 +3,7 @@ import numpy as np
 
 from wearfit_usd.dress.redress import similarity_fit
 from wearfit_usd.dress.rigid_parts import RigidParts
-from wearfit_usd.io.bvh import axis_rotation
+from wearfit_usd.transforms import axis_rotation
 
 
 def _groups(rng, n_body=300, n_items=200):

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 import traceback
 
@@ -76,7 +77,6 @@ def console() -> None:  # pragma: no cover - exercised through the installed com
     flush, and leave without the interpreter's teardown. Every output is
     written, closed and renamed into place by then; tearing down the loaded
     USD, scipy and numba modules only cost the user another 0.3-0.4 s."""
-    import os
     rc = main()
     try:
         sys.stdout.flush()

@@ -9,6 +9,7 @@ returns for one stage: its :class:`Skeleton`, the skinned body
 """
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -70,7 +71,6 @@ class Mesh:
 
     def copy_with_points(self, points: np.ndarray) -> "Mesh":
         """Same topology and attributes, new (N, 3) points."""
-        import copy
         m = copy.copy(self)
         m.points = np.asarray(points, dtype=np.float64)
         return m

@@ -7,6 +7,9 @@ left to right: ``A @ B`` applies A first, then B. A joint's world transform is
 
 Quaternions are ``(w, x, y, z)`` (real first, like ``Gf.Quatf``), unit length,
 and ``matrix_from_quat`` returns the 3x3 block of a row-vector matrix.
+Euler angles (:func:`euler_to_matrix`, :func:`matrix_to_euler`,
+:func:`axis_rotation`) follow BVH: the rotations listed left to right are
+intrinsic (column-vector ``R_0 @ R_1 @ R_2``), angles in degrees.
 Every function is vectorised over leading axes ``(...)``.
 """
 from __future__ import annotations
@@ -182,3 +185,69 @@ def rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def invert(m: np.ndarray) -> np.ndarray:
     """Inverse of (..., 4, 4) affine matrices."""
     return np.linalg.inv(m)
+
+
+# --------------------------------------------------------------------------
+# Euler angles (BVH semantics: the channel order as listed, intrinsic)
+
+_EULER_AXES = "XYZ"
+
+
+def axis_rotation(axis: int, angle_rad: np.ndarray) -> np.ndarray:
+    """Row-vector rotation matrices (..., 3, 3) about one coordinate axis."""
+    c = np.cos(angle_rad)
+    s = np.sin(angle_rad)
+    m = np.zeros(np.shape(angle_rad) + (3, 3))
+    i, j = [(1, 2), (2, 0), (0, 1)][axis]
+    m[..., axis, axis] = 1.0
+    # column-vector R has R[i,i]=c, R[i,j]=-s, R[j,i]=s, R[j,j]=c; row form = R.T
+    m[..., i, i] = c
+    m[..., j, j] = c
+    m[..., i, j] = s
+    m[..., j, i] = -s
+    return m
+
+
+def euler_to_matrix(angles_deg: np.ndarray, order: str) -> np.ndarray:
+    """BVH Euler angles -> row-vector rotation matrices.
+
+    angles_deg: (..., k) degrees, one column per letter of ``order``
+        (``order`` = the rotation channels as listed in the file, e.g. "ZXY",
+        k = len(order), 0..3 letters, no repeats).
+    Returns (..., 3, 3): the row-vector form of the column-vector product
+    ``R_order[0] @ R_order[1] @ R_order[2]`` (intrinsic rotations, BVH
+    semantics), i.e. ``r[2] @ r[1] @ r[0]`` in row-vector matrices.
+    """
+    angles = np.asarray(angles_deg, dtype=np.float64)
+    order = order.upper()
+    if len(order) != angles.shape[-1]:
+        raise ValueError(f"order {order!r} needs {len(order)} angles, got {angles.shape[-1]}")
+    out = np.broadcast_to(np.eye(3), angles.shape[:-1] + (3, 3)).copy()
+    rad = np.deg2rad(angles)
+    for k, letter in enumerate(order):
+        out = axis_rotation(_EULER_AXES.index(letter), rad[..., k]) @ out
+    return out
+
+
+def matrix_to_euler(rot: np.ndarray, order: str = "ZYX") -> np.ndarray:
+    """Row-vector rotation matrices (..., 3, 3) -> Euler angles (..., 3) in
+    degrees for a 3-letter BVH channel ``order`` (inverse of
+    :func:`euler_to_matrix`; at gimbal lock the last angle is set to 0)."""
+    order = order.upper()
+    if sorted(order) != ["X", "Y", "Z"]:
+        raise ValueError(f"rotation order must be a permutation of XYZ, got {order!r}")
+    m = np.swapaxes(np.asarray(rot, dtype=np.float64), -1, -2)  # column-vector form
+    i, j, k = (_EULER_AXES.index(c) for c in order)
+    # M = R_i(a) R_j(b) R_k(c); parity of the permutation (i, j, k)
+    sign = 1.0 if (j - i) % 3 == 1 else -1.0
+    sb = np.clip(sign * m[..., i, k], -1.0, 1.0)
+    b = np.arcsin(sb)
+    a = np.arctan2(-sign * m[..., j, k], m[..., k, k])
+    c = np.arctan2(-sign * m[..., i, j], m[..., i, i])
+    lock = np.abs(sb) > 1 - 1e-9
+    if np.any(lock):
+        # c := 0; then a from the j/k block of M = R_i(a) R_j(b)
+        a_lock = np.arctan2(sign * m[..., k, j], m[..., j, j])
+        a = np.where(lock, a_lock, a)
+        c = np.where(lock, 0.0, c)
+    return np.rad2deg(np.stack([a, b, c], axis=-1))

@@ -1,1 +1,15 @@
-"""TODO"""
+"""Dynamic try-on: a BVH clip onto a target body wearing the reference's
+items, evaluated frame by frame and written as a USD shot.
+
+- :mod:`.try_on` - :func:`animate` and its options and report (the stage's entry point)
+- :mod:`.frame_eval` - per-frame item points from body points (a dress plan built once)
+- :mod:`.penetration_guard` - push item vertices that sink into the moving body back out
+- :mod:`.skin_transfer` - copy body skin weights to items (the LBS baseline)
+
+:func:`animate`, :class:`AnimateOptions`, :class:`AnimateReport` and
+:func:`dress_items` are re-exported here (``wearfit_usd.animate`` was one
+module before).
+"""
+from .try_on import AnimateOptions, AnimateReport, animate, dress_items
+
+__all__ = ["AnimateOptions", "AnimateReport", "animate", "dress_items"]

@@ -2,7 +2,7 @@
 
 Nothing is downloaded and the shared data set is not needed:
 
-1. make the sample set (:mod:`wearfit_usd.samples`): a rigged reference body
+1. make the sample set (:mod:`wearfit_usd.demo.samples`): a rigged reference body
    wearing ten items and four target bodies (three with the reference's
    topology, one remeshed);
 2. dress every target (body fit + binding + redress) and measure the fit;
@@ -18,7 +18,14 @@ from pathlib import Path
 
 import numpy as np
 
+from ..animate.try_on import AnimateOptions, animate
+from ..dress.metrics import dress_report
+from ..dress.redress import dress
+from ..io.bvh import read_bvh
+from ..io.usd import read_character, write_character
+from ..io.usd_validate import validate_stage
 from ..progress import info
+from .samples import motion_path, write_sample_set
 
 #: (clip, target) pairs animated by default: one same-topology target and the
 #: remeshed one, so both body-fitting paths run.
@@ -35,15 +42,11 @@ def _lineup(paths: list[Path], size=(300, 450)) -> np.ndarray:
 def run_demo(out_dir, shots=None, render: bool = True, size=(480, 360), gif: bool = True,
              mp4: bool = True) -> dict:
     """Run the demo into ``out_dir``; returns the report (also written as
-    ``report.json`` / ``report.md``)."""
-    from ..animate.try_on import AnimateOptions, animate
-    from ..io.bvh import read_bvh
-    from ..dress.metrics import dress_report
-    from ..dress.redress import dress
-    from .samples import motion_path, write_sample_set
-    from ..io.usd import read_character, write_character
-    from ..io.usd_validate import validate_stage
+    ``report.json`` / ``report.md``).
 
+    The renderer (pyrender/OpenGL) and the media writers are imported only
+    when ``render`` asks for them: they are heavy and may be missing.
+    """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     shots = DEFAULT_SHOTS if shots is None else shots

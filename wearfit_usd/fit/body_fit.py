@@ -3,7 +3,7 @@
 No landmarks, no user input. Steps (all on numpy arrays, internal space:
 Y up, metres):
 
-1. **Pose alignment** (:mod:`wearfit_usd.pose_align`): reference joints are
+1. **Pose alignment** (:mod:`wearfit_usd.fit.pose_align`): reference joints are
    paired with target joints; the reference body is skinned with its own
    weights so that every mapped joint sits on its target joint and every
    bone points (and reaches) along the target bone. Without a target
@@ -23,7 +23,7 @@ Y up, metres):
    are), so each level costs one numeric Cholesky factorisation re-using one
    symbolic analysis (CHOLMOD, or scipy ``splu`` as fallback), then cheap
    back-substitutions.
-4. Pocket collapse (:mod:`wearfit_usd.fit_collapse`): vertices still far
+4. Pocket collapse (:mod:`wearfit_usd.fit.pockets`): vertices still far
    from the target - pockets the target does not have, such as the mouth
    bag, eye sockets and toe gaps closed by a voxel remesh - are pulled onto
    it in line-searched steps that never turn a triangle over.
@@ -31,9 +31,10 @@ Y up, metres):
    (the collapsed pockets excluded).
 
 Public API: :func:`fit_body` (arrays) and :func:`fit_character`
-(:class:`~wearfit_usd.model.Character` pair). Geometry helpers
-(:class:`SurfaceIndex`, :func:`surface_distances`, :func:`chamfer`) are
-reused by the benchmarks and other stages.
+(:class:`~wearfit_usd.model.Character` pair). The closest-point index and
+the quality figures (:class:`~.measures.SurfaceIndex`,
+:func:`~.measures.chamfer`, :func:`~.measures.count_flipped`) live in
+:mod:`wearfit_usd.fit.measures`.
 """
 from __future__ import annotations
 
@@ -43,10 +44,16 @@ from dataclasses import asdict, dataclass, field, fields
 import numpy as np
 import scipy.sparse as sp
 
-from ..geometry.closest import SurfaceQuery, face_normals, vertex_normals
 from ..errors import GeometryError
-from .pockets import collapse_pockets
+from ..geometry.closest import vertex_normals
+from ..geometry.mesh import nondegenerate
 from ..geometry.sparse_solve import SPDSolver
+from ..motion.skinning import skin_points
+from ..transforms import rotation_part
+from ..types import Faces, JointIndices, Mask, Points, Weights
+from . import pose_align as pa
+from .measures import SurfaceIndex, chamfer, count_flipped, triangle_normals
+from .pockets import collapse_pockets
 
 # --------------------------------------------------------------------------
 # options and result
@@ -126,124 +133,9 @@ class FitResult:
     joint_pairs: list = field(default_factory=list)
 
 
-# --------------------------------------------------------------------------
-# geometry helpers (vectorised)
-
-def triangle_normals(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """(T, 3) unnormalised normals (length = 2 * area)."""
-    return face_normals(points, faces, unit=False)
-
-
-def _unit(v: np.ndarray) -> np.ndarray:
-    n = np.linalg.norm(v, axis=-1, keepdims=True)
-    return v / np.where(n < 1e-30, 1.0, n)
-
-
-class SurfaceIndex:
-    """Closest-point queries on a fixed triangle mesh, for fitting: a thin
-    layer over :class:`clearance.SurfaceQuery` that leaves degenerate
-    (zero-area) triangles out and reports original face ids and the
-    interpolated unit vertex normal at the closest point.
-    """
-
-    def __init__(self, points: np.ndarray, faces: np.ndarray, k: int = 6):
-        self.points = np.asarray(points, float)
-        fn = triangle_normals(self.points, faces)
-        area2 = np.linalg.norm(fn, axis=1)
-        good = area2 > 1e-12 * max(float(np.median(area2)), 1e-300)
-        self.face_ids = np.flatnonzero(good)
-        self.faces = np.asarray(faces)[good]
-        self.face_normals = fn[good] / area2[good, None]
-        self.k = int(min(k, len(self.faces)))
-        self._query = SurfaceQuery(self.faces, self.points)
-        self._vertex_normals = None
-
-    @property
-    def vertex_normals(self) -> np.ndarray:
-        if self._vertex_normals is None:
-            self._vertex_normals = vertex_normals(self.points, self.faces)
-        return self._vertex_normals
-
-    def query(self, q: np.ndarray, chunk: int = 20000, fast: bool = False):
-        """Closest surface points to q (M, 3).
-
-        Returns dict: ``points`` (M, 3), ``distance`` (M,), ``face`` (M,)
-        index into the ORIGINAL face array, ``bary`` (M, 3), ``normal`` (M, 3)
-        (interpolated vertex normal, unit). ``fast``: only the triangles with
-        the nearest centroids are tested (no vertex ring), about 2x cheaper
-        and nearly always the same answer on fine meshes.
-        """
-        res = self._query.closest(np.asarray(q, float), k=self.k, chunk=chunk, ring=not fast,
-                                  signed=False)
-        f, b = res["triangle"], res["bary"]
-        nrm = _unit(np.einsum("mk,mkj->mj", b, self.vertex_normals[self.faces[f]]))
-        return {"points": res["point"], "distance": res["distance"], "face_local": f,
-                "face": self.face_ids[f], "bary": b, "normal": nrm}
-
-
-def surface_distances(points: np.ndarray, mesh_points: np.ndarray, mesh_faces: np.ndarray,
-                      index: SurfaceIndex | None = None) -> np.ndarray:
-    """(M,) distance from each of points (M, 3) to the surface (mesh_points, mesh_faces)."""
-    index = index or SurfaceIndex(mesh_points, mesh_faces)
-    return index.query(points)["distance"]
-
-
-def surface_samples(points: np.ndarray, faces: np.ndarray, count: int = 30000,
-                    seed: int = 0) -> np.ndarray:
-    """(count, 3) points spread uniformly by area over the triangles
-    (points (N, 3), faces (T, 3)); deterministic for a given ``seed``."""
-    points = np.asarray(points, float)
-    faces = np.asarray(faces)
-    area = np.linalg.norm(triangle_normals(points, faces), axis=1)
-    rng = np.random.default_rng(seed)
-    t = rng.choice(len(faces), size=count, p=area / area.sum())
-    r1, r2 = rng.random(count), rng.random(count)
-    s = np.sqrt(r1)
-    w = np.stack([1.0 - s, s * (1.0 - r2), s * r2], axis=1)  # uniform barycentric
-    return np.einsum("mk,mkj->mj", w, points[faces[t]])
-
-
-def chamfer(a_points, a_faces, b_points, b_faces, index_b: SurfaceIndex | None = None,
-            samples: int = 30000) -> dict:
-    """Point-to-surface distances both ways, in millimetres (inputs in metres).
-
-    ``fit_to_target_*``: vertices of a to the surface of b; ``target_to_fit_*``:
-    vertices of b to the surface of a. ``*_surface_*``: the same from
-    ``samples`` points spread uniformly by area over each surface (the
-    surface-to-surface figure: a vertex-dense detail such as the mouth weighs
-    by its area, not by its vertex count). 0 samples: vertices only.
-    """
-    index_b = index_b or SurfaceIndex(b_points, b_faces)
-    index_a = SurfaceIndex(a_points, a_faces)
-    d_ab = index_b.query(a_points)["distance"] * 1e3
-    d_ba = index_a.query(b_points)["distance"] * 1e3
-    out = {"fit_to_target_mean_mm": float(d_ab.mean()),
-           "fit_to_target_p99_mm": float(np.percentile(d_ab, 99)),
-           "target_to_fit_mean_mm": float(d_ba.mean()),
-           "target_to_fit_p99_mm": float(np.percentile(d_ba, 99))}
-    if samples:
-        s_ab = index_b.query(surface_samples(a_points, a_faces, samples))["distance"] * 1e3
-        s_ba = index_a.query(surface_samples(b_points, b_faces, samples))["distance"] * 1e3
-        out.update(fit_to_target_surface_mean_mm=float(s_ab.mean()),
-                   fit_to_target_surface_p99_mm=float(np.percentile(s_ab, 99)),
-                   target_to_fit_surface_mean_mm=float(s_ba.mean()),
-                   target_to_fit_surface_p99_mm=float(np.percentile(s_ba, 99)))
-    return out
-
-
-def count_flipped(before: np.ndarray, after: np.ndarray, faces: np.ndarray) -> int:
-    """Triangles whose normal turned by more than 90 degrees between two
-    embeddings of the same mesh (zero-area triangles in ``before`` ignored)."""
-    n0 = triangle_normals(before, faces)
-    n1 = triangle_normals(after, faces)
-    a0 = np.linalg.norm(n0, axis=1)
-    good = a0 > 1e-12 * max(float(np.median(a0)), 1e-300)
-    return int(np.sum(np.einsum("ij,ij->i", n0[good], n1[good]) <= 0))
-
-
-def check_geometry(points: np.ndarray, faces: np.ndarray, label: str, what: str):
+def check_geometry(points: Points, faces: Faces, label: str, what: str) -> Mask:
     """Raise GeometryError naming ``label`` for NaN/inf points or bad faces;
-    return (T,) mask of non-degenerate triangles."""
+    return (T,) mask of non-degenerate triangles (:func:`~wearfit_usd.geometry.mesh.nondegenerate`)."""
     points = np.asarray(points)
     faces = np.asarray(faces)
     if points.ndim != 2 or points.shape[1] != 3 or len(points) == 0:
@@ -258,8 +150,7 @@ def check_geometry(points: np.ndarray, faces: np.ndarray, label: str, what: str)
                                    f"(first at index {int(np.argmax(bad))})")
     if faces.min() < 0 or faces.max() >= len(points):
         raise GeometryError(label, f"{what} mesh has face vertex indices out of range")
-    a2 = np.linalg.norm(triangle_normals(points, faces), axis=1)
-    good = a2 > 1e-12 * max(float(np.median(a2)), 1e-300)
+    good = nondegenerate(points, faces)
     if good.sum() == 0:
         raise GeometryError(label, f"{what} mesh has only zero-area triangles")
     return good
@@ -516,8 +407,9 @@ def _same_topology(ref_points, ref_faces, target_points, target_faces) -> bool:
             and bool(np.array_equal(ref_faces, target_faces)))
 
 
-def fit_body(ref_points, ref_faces, target_points, target_faces, *, ref_skeleton=None,
-             ref_joint_indices=None, ref_joint_weights=None, target_skeleton=None,
+def fit_body(ref_points: Points, ref_faces: Faces, target_points: Points, target_faces: Faces, *,
+             ref_skeleton=None, ref_joint_indices: JointIndices | None = None,
+             ref_joint_weights: Weights | None = None, target_skeleton=None,
              options=None) -> FitResult:
     """Deform the reference body onto the target body.
 
@@ -547,8 +439,6 @@ def fit_body(ref_points, ref_faces, target_points, target_faces, *, ref_skeleton
     if diag["ref_degenerate_triangles"] or diag["target_degenerate_triangles"]:
         warnings_.append(f"ignored {diag['ref_degenerate_triangles']} zero-area reference and "
                          f"{diag['target_degenerate_triangles']} zero-area target triangles")
-    from . import pose_align as pa
-
     # ---- step 1: pose / similarity alignment
     t0 = time.perf_counter()
     joint_world = None
@@ -561,7 +451,6 @@ def fit_body(ref_points, ref_faces, target_points, target_faces, *, ref_skeleton
         pose = pa.pose_to_target(ref_skeleton.bind_world, ref_skeleton.parents,
                                  target_skeleton.bind_world, pairs, stretch=opts.stretch_bones)
         if opts.pose_align and can_skin:
-            from ..motion.skinning import skin_points
             posed = skin_points(ref_points, np.asarray(ref_joint_indices),
                                 np.asarray(ref_joint_weights), pose["skin"])
             joint_world = pose["world"]
@@ -571,7 +460,6 @@ def fit_body(ref_points, ref_faces, target_points, target_faces, *, ref_skeleton
                 warnings_.append("reference has no skin weights: pose step skipped, "
                                  "similarity from the joints only")
             posed = pa.apply(pose["similarity"], ref_points)
-            from ..transforms import rotation_part
             sim = pose["similarity"]
             joint_world = ref_skeleton.bind_world.copy()
             joint_world[:, :3, :3] = rotation_part(ref_skeleton.bind_world) @ rotation_part(sim)
@@ -588,7 +476,6 @@ def fit_body(ref_points, ref_faces, target_points, target_faces, *, ref_skeleton
         sim, _ = pa.surface_similarity(ref_points, target_points)
         posed = pa.apply(sim, ref_points)
         if ref_skeleton is not None:
-            from ..transforms import rotation_part
             joint_world = ref_skeleton.bind_world.copy()
             joint_world[:, :3, :3] = rotation_part(ref_skeleton.bind_world) @ rotation_part(sim)
             joint_world[:, 3, :3] = pa.apply(sim, ref_skeleton.bind_positions())

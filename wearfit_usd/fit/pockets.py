@@ -23,7 +23,7 @@ This stage pulls them in anyway, in small orientation-preserving steps:
    energy (a displacement: a zero pull leaves the state exactly as it is).
 3. Per-vertex line search: triangles that the step would turn over
    (normal turned by 90 degrees or more from the reference normal, the test of
-   :func:`~wearfit_usd.body_fit.count_flipped`) halve the step of their
+   :func:`~wearfit_usd.fit.measures.count_flipped`) halve the step of their
    vertices and one ring around them, then the block is re-solved (only the
    right-hand side changes). After ``soft_rounds`` the vertices whose step
    reached zero are put back exactly where they were; if a step still

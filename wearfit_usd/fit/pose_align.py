@@ -4,22 +4,27 @@ Everything is in internal space (Y up, metres) with row-vector 4x4 matrices
 (``p' = [p, 1] @ M``), see :mod:`wearfit_usd.transforms`.
 
 * :func:`joint_pairs` maps reference joints to target joints (through
-  :func:`wearfit_usd.joint_maps.map_joints` when available, identical names
-  otherwise).
+  :func:`wearfit_usd.motion.joint_maps.map_joints`, identical names when it
+  pairs nothing).
 * :func:`pose_to_target` computes one affine skinning matrix per reference
   joint so that, skinned with the reference's own weights, the body's bones
   line up with the target's bind pose: each joint goes to its mapped target
   joint and each bone is turned (and stretched along its axis) onto the
   target bone.
-* :func:`similarity_from_pairs` (Umeyama) and :func:`surface_similarity`
-  (PCA + scaled ICP) give global scale + rigid alignments.
+* :func:`similarity_from_pairs` (the Umeyama fit of
+  :mod:`wearfit_usd.geometry.mesh` as a 4x4 matrix) and
+  :func:`surface_similarity` (PCA + scaled ICP) give global scale + rigid
+  alignments.
 """
 from __future__ import annotations
 
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ..geometry.mesh import best_rotation, similarity_fit
+from ..motion.joint_maps import map_joints
 from ..transforms import rotation_between, rotation_part
+from ..types import Matrices4, Matrix4, Points, Scalars
 
 
 # --------------------------------------------------------------------------
@@ -60,21 +65,16 @@ def _normalise_mapping(result, source_names, target_names) -> list[tuple[int, in
 def joint_pairs(source_names: list[str], target_names: list[str]) -> list[tuple[int, int]]:
     """[(source joint index, target joint index)] for joints that correspond.
 
-    Uses ``wearfit_usd.joint_maps.map_joints`` when that module exists;
-    otherwise joints with identical names are paired.
+    Uses :func:`wearfit_usd.motion.joint_maps.map_joints`; when it fails or
+    pairs nothing, joints with identical names are paired.
     """
     try:
-        from ..motion.joint_maps import map_joints  # written in its own issue
-    except ImportError:
-        map_joints = None
-    if map_joints is not None:
-        try:
-            pairs = _normalise_mapping(map_joints(list(source_names), list(target_names)),
-                                       source_names, target_names)
-            if pairs:
-                return pairs
-        except Exception:  # a mapper failure must not stop fitting
-            pass
+        pairs = _normalise_mapping(map_joints(list(source_names), list(target_names)),
+                                   source_names, target_names)
+        if pairs:
+            return pairs
+    except Exception:  # a mapper failure must not stop fitting
+        pass
     tgt = {n: i for i, n in enumerate(target_names)}
     return [(i, tgt[n]) for i, n in enumerate(source_names) if n in tgt]
 
@@ -82,40 +82,39 @@ def joint_pairs(source_names: list[str], target_names: list[str]) -> list[tuple[
 # --------------------------------------------------------------------------
 # similarity transforms
 
-def similarity_from_pairs(src: np.ndarray, dst: np.ndarray, weights: np.ndarray | None = None,
-                          allow_scale: bool = True) -> np.ndarray:
-    """Least-squares similarity (Umeyama) taking src (n, 3) onto dst (n, 3).
+def similarity_from_pairs(src: Points, dst: Points, weights: Scalars | None = None,
+                          allow_scale: bool = True) -> Matrix4:
+    """Least-squares similarity (Umeyama) taking src onto dst, as a matrix.
 
-    Returns a (4, 4) row-vector matrix ``M`` with ``dst ~ [src, 1] @ M``.
+    Parameters
+    ----------
+    src, dst : (n, 3) corresponding points.
+    weights : (n,) (None: all equal).
+    allow_scale : fit a uniform scale (False: rigid). Coincident source
+        points have no scale to measure: the fit is then rigid.
+
+    Returns
+    -------
+    (4, 4) row-vector matrix ``M`` with ``dst ~ [src, 1] @ M``: the
+    :func:`~wearfit_usd.geometry.mesh.similarity_fit` in matrix form.
     """
     src = np.asarray(src, float)
     dst = np.asarray(dst, float)
-    w = np.ones(len(src)) if weights is None else np.asarray(weights, float)
-    w = w / w.sum()
-    ms, md = w @ src, w @ dst
-    a, b = src - ms, dst - md
-    cov = (a * w[:, None]).T @ b  # (3, 3): sum w a^T b
-    u, s, vt = np.linalg.svd(cov)
-    d = np.sign(np.linalg.det(u @ vt))
-    s = s.copy()
-    s[2] *= d
-    u = u.copy()
-    u[:, 2] *= d
-    r = u @ vt  # row-vector rotation: a @ r ~ b
-    var = float(w @ np.sum(a * a, axis=1))
-    scale = float(s.sum() / var) if (allow_scale and var > 0) else 1.0
+    allow_scale = allow_scale and bool(np.ptp(src, axis=0).any())
+    scale, r, t = similarity_fit(src, dst, weights, scale=allow_scale)
     m = np.eye(4)
     m[:3, :3] = scale * r
-    m[3, :3] = md - scale * ms @ r
+    m[3, :3] = t
     return m
 
 
-def apply(m: np.ndarray, points: np.ndarray) -> np.ndarray:
+def apply(m: Matrix4, points: Points) -> Points:
+    """(n, 3) points mapped by the (4, 4) row-vector matrix ``m``."""
     return points @ m[:3, :3] + m[3, :3]
 
 
-def surface_similarity(src: np.ndarray, dst: np.ndarray, iterations: int = 30,
-                       sample: int = 4000, seed: int = 0) -> tuple[np.ndarray, float]:
+def surface_similarity(src: Points, dst: Points, iterations: int = 30,
+                       sample: int = 4000, seed: int = 0) -> tuple[Matrix4, float]:
     """Similarity alignment of point set src onto point set dst without any
     correspondence: centroid + RMS-radius scale, PCA axes (the four proper
     sign choices are tried) refined by symmetric scaled ICP.
@@ -174,17 +173,7 @@ def _mapped_descendants(children, mapped, j):
     return out
 
 
-def _kabsch(a: np.ndarray, b: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """Rotation r (row-vector) minimising sum w |a r - b|^2, a, b (n, 3)."""
-    cov = (a * w[:, None]).T @ b
-    u, _, vt = np.linalg.svd(cov)
-    d = np.sign(np.linalg.det(u @ vt))
-    u = u.copy()
-    u[:, 2] *= d
-    return u @ vt
-
-
-def pose_to_target(ref_bind: np.ndarray, ref_parents: np.ndarray, target_bind: np.ndarray,
+def pose_to_target(ref_bind: Matrices4, ref_parents: np.ndarray, target_bind: Matrices4,
                    pairs: list[tuple[int, int]], stretch: bool = True,
                    frame_tolerance_deg: float = 20.0) -> dict:
     """Skinning matrices that pose the reference rig onto the target rig.
@@ -263,7 +252,7 @@ def pose_to_target(ref_bind: np.ndarray, ref_parents: np.ndarray, target_bind: n
             a = dr / np.linalg.norm(dr, axis=1, keepdims=True)
             b = dt / np.linalg.norm(dt, axis=1, keepdims=True)
             w = np.linalg.norm(dr, axis=1)
-            D[j] = _kabsch(a, b, w)
+            D[j] = best_rotation((a * w[:, None]).T @ b)[0]  # Kabsch, about the joint
         else:
             D[j] = d_parent
             if d_frame is not None:

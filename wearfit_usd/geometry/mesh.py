@@ -3,13 +3,17 @@
 - :func:`adjacency`, :func:`components`, :func:`edges`: vertex adjacency,
   connected components and unique edges of a triangle mesh;
 - :func:`nondegenerate`: the one test for zero-area triangles;
-- :func:`similarity_fit`: the one best-fit similarity (Umeyama 1991).
+- :func:`similarity_fit`: the one best-fit similarity (Umeyama 1991), with
+  :func:`best_rotation` its rotation step (also used alone, uncentred).
 """
 from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
+from numpy.typing import NDArray
 from scipy.sparse.csgraph import connected_components
+
+from ..types import Faces, Mask, Matrix3, Points, Scalars
 
 DEGENERATE_REL = 1e-12  # a triangle whose doubled area is below this x the mesh's median is degenerate
 
@@ -41,11 +45,20 @@ def edges(faces: np.ndarray) -> np.ndarray:
     return np.stack([key // n, key % n], axis=1)
 
 
-def similarity_fit(src: np.ndarray, dst: np.ndarray, weights: np.ndarray | None = None,
-                   scale: bool = True):
+def similarity_fit(src: Points, dst: Points, weights: Scalars | None = None,
+                   scale: bool = True) -> tuple[float, Matrix3, NDArray[np.float64]]:
     """Best-fit similarity (Umeyama/Kabsch): dst ~ s * src @ rot + t.
 
-    src, dst (P, 3); weights (P,). Returns (s, rot (3, 3) row-vector, t (3,)).
+    Parameters
+    ----------
+    src, dst : (P, 3) corresponding points.
+    weights : (P,) non-negative weights (None: all equal).
+    scale : fit the uniform scale ``s`` (False: ``s = 1``, a rigid fit).
+
+    Returns
+    -------
+    s : float scale; rot : (3, 3) row-vector rotation (det +1); t : (3,)
+    translation.
     """
     w = np.ones(len(src)) if weights is None else np.asarray(weights, float)
     w = w / w.sum()
@@ -53,16 +66,34 @@ def similarity_fit(src: np.ndarray, dst: np.ndarray, weights: np.ndarray | None 
     md = w @ dst
     a = src - ms
     b = dst - md
-    h = (a * w[:, None]).T @ b
-    u, sv, vt = np.linalg.svd(h)
-    d = np.sign(np.linalg.det(u @ vt))
-    dm = np.array([1.0, 1.0, d])
-    rot = (u * dm) @ vt
-    s = float((sv * dm).sum() / max(w @ np.einsum("ij,ij->i", a, a), 1e-300)) if scale else 1.0
+    rot, sv = best_rotation((a * w[:, None]).T @ b)
+    # np.sum, not einsum: einsum adds the three squares in another order
+    s = float(sv.sum() / max(w @ np.sum(a * a, axis=1), 1e-300)) if scale else 1.0
     return s, rot, md - s * ms @ rot
 
 
-def nondegenerate(points: np.ndarray, faces: np.ndarray, rel: float = DEGENERATE_REL) -> np.ndarray:
+def best_rotation(h: Matrix3) -> tuple[Matrix3, NDArray[np.float64]]:
+    """The rotation step shared by every Kabsch/Umeyama fit.
+
+    Parameters
+    ----------
+    h : (3, 3) weighted cross-covariance ``sum_i w_i a_i^T b_i`` of the
+        (centred or not) source rows ``a`` and destination rows ``b``.
+
+    Returns
+    -------
+    rot : (3, 3) row-vector rotation (det +1) minimising
+        ``sum_i w_i |a_i @ rot - b_i|^2``; sv : (3,) singular values of
+        ``h``, the last one negated when a reflection was turned into a
+        rotation (their sum over the source variance is the Umeyama scale).
+    """
+    u, sv, vt = np.linalg.svd(h)
+    d = np.sign(np.linalg.det(u @ vt))
+    dm = np.array([1.0, 1.0, d])
+    return (u * dm) @ vt, sv * dm
+
+
+def nondegenerate(points: Points, faces: Faces, rel: float = DEGENERATE_REL) -> Mask:
     """(T,) bool: triangles whose doubled area exceeds ``rel`` x the median
     doubled area of the mesh (zero-area and sliver triangles are False).
 

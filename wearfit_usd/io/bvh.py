@@ -31,13 +31,15 @@ from __future__ import annotations
 
 import math
 import re
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import BVHError
-from ..transforms import Z_UP_TO_Y_UP
+from ..transforms import Z_UP_TO_Y_UP, euler_to_matrix
+from .atomic import atomic_output
 
 #: metres per CMU unit (ASF ``length 0.45``: 1 unit = 1/0.45 inch)
 CMU_UNIT_M = 0.0254 / 0.45
@@ -48,69 +50,6 @@ _UNITS = {  # name -> metres per unit, for the height heuristic
 _AXES = "XYZ"
 _ROT_CHANNELS = {"Xrotation": 0, "Yrotation": 1, "Zrotation": 2}
 _POS_CHANNELS = {"Xposition": 0, "Yposition": 1, "Zposition": 2}
-
-
-# --------------------------------------------------------------------------
-# Euler angles
-
-def axis_rotation(axis: int, angle_rad: np.ndarray) -> np.ndarray:
-    """Row-vector rotation matrices (..., 3, 3) about one coordinate axis."""
-    c = np.cos(angle_rad)
-    s = np.sin(angle_rad)
-    m = np.zeros(np.shape(angle_rad) + (3, 3))
-    i, j = [(1, 2), (2, 0), (0, 1)][axis]
-    m[..., axis, axis] = 1.0
-    # column-vector R has R[i,i]=c, R[i,j]=-s, R[j,i]=s, R[j,j]=c; row form = R.T
-    m[..., i, i] = c
-    m[..., j, j] = c
-    m[..., i, j] = s
-    m[..., j, i] = -s
-    return m
-
-
-def euler_to_matrix(angles_deg: np.ndarray, order: str) -> np.ndarray:
-    """BVH Euler angles -> row-vector rotation matrices.
-
-    angles_deg: (..., k) degrees, one column per letter of ``order``
-        (``order`` = the rotation channels as listed in the file, e.g. "ZXY",
-        k = len(order), 0..3 letters, no repeats).
-    Returns (..., 3, 3): the row-vector form of the column-vector product
-    ``R_order[0] @ R_order[1] @ R_order[2]`` (intrinsic rotations, BVH
-    semantics), i.e. ``r[2] @ r[1] @ r[0]`` in row-vector matrices.
-    """
-    angles = np.asarray(angles_deg, dtype=np.float64)
-    order = order.upper()
-    if len(order) != angles.shape[-1]:
-        raise ValueError(f"order {order!r} needs {len(order)} angles, got {angles.shape[-1]}")
-    out = np.broadcast_to(np.eye(3), angles.shape[:-1] + (3, 3)).copy()
-    rad = np.deg2rad(angles)
-    for k, letter in enumerate(order):
-        out = axis_rotation(_AXES.index(letter), rad[..., k]) @ out
-    return out
-
-
-def matrix_to_euler(rot: np.ndarray, order: str = "ZYX") -> np.ndarray:
-    """Row-vector rotation matrices (..., 3, 3) -> Euler angles (..., 3) in
-    degrees for a 3-letter BVH channel ``order`` (inverse of
-    :func:`euler_to_matrix`; at gimbal lock the last angle is set to 0)."""
-    order = order.upper()
-    if sorted(order) != ["X", "Y", "Z"]:
-        raise ValueError(f"rotation order must be a permutation of XYZ, got {order!r}")
-    m = np.swapaxes(np.asarray(rot, dtype=np.float64), -1, -2)  # column-vector form
-    i, j, k = (_AXES.index(c) for c in order)
-    # M = R_i(a) R_j(b) R_k(c); parity of the permutation (i, j, k)
-    sign = 1.0 if (j - i) % 3 == 1 else -1.0
-    sb = np.clip(sign * m[..., i, k], -1.0, 1.0)
-    b = np.arcsin(sb)
-    a = np.arctan2(-sign * m[..., j, k], m[..., k, k])
-    c = np.arctan2(-sign * m[..., i, j], m[..., i, i])
-    lock = np.abs(sb) > 1 - 1e-9
-    if np.any(lock):
-        # c := 0; then a from the j/k block of M = R_i(a) R_j(b)
-        a_lock = np.arctan2(sign * m[..., k, j], m[..., j, j])
-        a = np.where(lock, a_lock, a)
-        c = np.where(lock, 0.0, c)
-    return np.rad2deg(np.stack([a, b, c], axis=-1))
 
 
 # --------------------------------------------------------------------------
@@ -624,15 +563,14 @@ def write_bvh(path, joint_names, parents, offsets, root_positions, rotations_deg
     root_positions: (F, 3) root position per frame, metres.
     rotations_deg: (F, J, 3) local Euler angles in degrees, column k is the
         rotation about axis ``order[k]`` (the channel order in the file, BVH
-        intrinsic semantics, see :func:`euler_to_matrix`; use
-        :func:`matrix_to_euler` to get them from rotation matrices).
+        intrinsic semantics, see :func:`~wearfit_usd.transforms.euler_to_matrix`;
+        use :func:`~wearfit_usd.transforms.matrix_to_euler` to get them from
+        rotation matrices).
     order: rotation channel order for every joint, a permutation of "XYZ".
     scale: metres per file unit (e.g. 0.01 writes centimetres).
     Root: ``Xposition Yposition Zposition`` + 3 rotations; others: 3
     rotations; leaves get an ``End Site`` (zero offset).
     """
-    from .usd import atomic_output
-
     names = [str(n) for n in joint_names]
     parents = np.asarray(parents, dtype=np.int64)
     offsets = np.asarray(offsets, dtype=np.float64).reshape(-1, 3)
@@ -691,7 +629,6 @@ def write_bvh(path, joint_names, parents, offsets, root_positions, rotations_deg
             out.append(f"{ind}\t}}")
         out.append(f"{ind}}}")
 
-    import sys
     limit = sys.getrecursionlimit()
     sys.setrecursionlimit(max(limit, 4 * J + 100))
     try:

@@ -7,22 +7,23 @@ internal space (world, metres, Y up); see :mod:`wearfit_usd.model`.
 
 Writing: :func:`write_character` authors a static rigged stage (body +
 items); :class:`ShotWriter` authors an animated shot (SkelAnimation + items
-with time-sampled points), frame by frame. Both write to a temporary file in
-the destination folder and rename it into place, so a crash never leaves a
+with time-sampled points), frame by frame (:mod:`.usd_shot`). Both author
+through :mod:`.usd_author` and write to a temporary file in the destination
+folder renamed into place (:mod:`.atomic`), so a crash never leaves a
 half-written file.
 """
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
-from ..geometry.closest import vertex_normals
 from ..errors import GeometryError, InputError, USDInputError
 from ..model import Character, Mesh, Primvar, Skeleton
+from ..progress import warn
 from ..transforms import invert, stage_to_internal, transform_points
+from .atomic import atomic_output
+from .usd_author import StageLayout, author_body, author_skeleton, author_static_item
 
 _SKIP_PRIMVARS = {"skel:jointIndices", "skel:jointWeights", "skel:geomBindTransform",
                   "skel:skinningMethod"}
@@ -348,139 +349,12 @@ def _read_skinned_mesh(stage, prim, skinning_query, skeleton: Skeleton, path) ->
     mesh.joint_indices, mesh.joint_weights = ind, w
     method = skinning_query.GetSkinningMethod() if hasattr(skinning_query, "GetSkinningMethod") else None
     if method is not None and str(method) not in ("", "classicLinear"):
-        from ..progress import warn
         warn(f"{path}: {prim.GetPath()} asks for {method} skinning; wearfit uses linear blend skinning")
     return mesh
 
 
 # --------------------------------------------------------------------------
 # writing
-
-def atomic_output(path):
-    """Context manager: yields a temporary path beside ``path`` with the same
-    extension; renames it to ``path`` on success, deletes it on failure."""
-    import contextlib
-
-    @contextlib.contextmanager
-    def _cm():
-        dest = Path(path)
-        dest.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{dest.stem}.", suffix=dest.suffix or ".usd",
-                                   dir=str(dest.parent))
-        os.close(fd)
-        os.unlink(tmp)  # Sdf wants to create the file itself
-        try:
-            yield tmp
-            os.replace(tmp, dest)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-            raise
-    return _cm()
-
-
-def _vt_points(points):
-    from pxr import Vt
-    return Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(points, dtype=np.float32))
-
-
-def _extent(points):
-    from pxr import Vt
-    # column by column: numpy's axis-0 reduction of an (M, 3) array is ~8x slower
-    ext = np.array([[points[:, i].min() for i in range(3)], [points[:, i].max() for i in range(3)]],
-                   dtype=np.float32)
-    return Vt.Vec3fArray.FromNumpy(ext)
-
-
-class _StageLayout:
-    """Prim paths and stage metadata shared by the writers."""
-
-    def __init__(self, stage, up_axis, meters_per_unit, root="Root"):
-        _, Sdf, Usd, UsdGeom, UsdSkel, _ = _pxr()
-        self.stage = stage
-        UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z if str(up_axis).upper() == "Z" else UsdGeom.Tokens.y)
-        UsdGeom.SetStageMetersPerUnit(stage, float(meters_per_unit))
-        self.root = Sdf.Path(f"/{root}")
-        root_prim = UsdGeom.Xform.Define(stage, self.root).GetPrim()
-        stage.SetDefaultPrim(root_prim)
-        self.skel_root = self.root.AppendChild("Character")
-        self.skel_path = self.skel_root.AppendChild("Skeleton")
-        self.body_path = self.skel_root.AppendChild("Body")
-        self.anim_path = self.skel_root.AppendChild("Animation")
-        self.items_path = self.root.AppendChild("Items")
-        self.to_internal = stage_to_internal(up_axis, meters_per_unit)
-        self.from_internal = invert(self.to_internal)
-
-
-def _safe_name(name: str) -> str:
-    import re
-    s = re.sub(r"[^A-Za-z0-9_]", "_", name)
-    return s if s and not s[0].isdigit() else f"_{s}"
-
-
-def _author_mesh_topology(usd_mesh, mesh: Mesh):
-    from pxr import Sdf, UsdGeom, Vt
-    usd_mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(mesh.face_vertex_counts.astype(np.int32)))
-    usd_mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(mesh.face_vertex_indices.astype(np.int32)))
-    usd_mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
-    usd_mesh.CreateOrientationAttr(UsdGeom.Tokens.leftHanded if mesh.left_handed else UsdGeom.Tokens.rightHanded)
-    if mesh.double_sided:
-        usd_mesh.CreateDoubleSidedAttr(True)
-    api = UsdGeom.PrimvarsAPI(usd_mesh.GetPrim())
-    for pv in mesh.primvars:
-        tn = Sdf.ValueTypeNames.Find(pv.type_name)
-        if not tn:
-            continue
-        p = api.CreatePrimvar(pv.name, tn, pv.interpolation, pv.element_size)
-        try:
-            p.Set(tn.type.pythonClass(pv.values.tolist()) if pv.values.dtype == object else pv.values)
-        except Exception:
-            try:
-                p.Set(tn.type.pythonClass.FromNumpy(pv.values))
-            except Exception:
-                continue
-        if pv.indices is not None:
-            p.SetIndices(Vt.IntArray.FromNumpy(pv.indices.astype(np.int32)))
-    if mesh.display_color is not None and not any(pv.name == "displayColor" for pv in mesh.primvars):
-        usd_mesh.CreateDisplayColorPrimvar(UsdGeom.Tokens.constant).Set(
-            [tuple(float(c) for c in mesh.display_color)])
-
-
-def _author_skeleton(layout: _StageLayout, skeleton: Skeleton):
-    """Skeleton prim at identity under the SkelRoot; transforms re-expressed
-    so the stage's world pose equals the internal one."""
-    from pxr import UsdSkel, Vt
-    out = Skeleton(skeleton.joint_names, skeleton.joint_paths, skeleton.parents,
-                   skeleton.bind_world, skeleton.rest_local, layout.to_internal)
-    bind_skel = skeleton.bind_world @ layout.from_internal
-    rest_world = skeleton.rest_world()
-    rest_local = out.local_from_world(rest_world)
-    skel = UsdSkel.Skeleton.Define(layout.stage, layout.skel_path)
-    skel.CreateJointsAttr(Vt.TokenArray(skeleton.joint_paths))
-    skel.CreateJointNamesAttr(Vt.TokenArray(skeleton.joint_names))
-    skel.CreateBindTransformsAttr(Vt.Matrix4dArray.FromNumpy(np.ascontiguousarray(bind_skel)))
-    skel.CreateRestTransformsAttr(Vt.Matrix4dArray.FromNumpy(np.ascontiguousarray(rest_local)))
-    return skel, out
-
-
-def _author_body(layout: _StageLayout, body: Mesh, skeleton: Skeleton | None):
-    from pxr import Gf, UsdGeom, UsdSkel, Vt
-    pts = transform_points(body.points, layout.from_internal)
-    m = UsdGeom.Mesh.Define(layout.stage, layout.body_path)
-    m.CreatePointsAttr(_vt_points(pts))
-    m.CreateExtentAttr(_extent(pts))
-    _author_mesh_topology(m, body)
-    if skeleton is not None and body.joint_indices is not None:
-        api = UsdSkel.BindingAPI.Apply(m.GetPrim())
-        api.CreateSkeletonRel().SetTargets([layout.skel_path])
-        k = body.joint_indices.shape[1]
-        api.CreateJointIndicesPrimvar(False, k).Set(
-            Vt.IntArray.FromNumpy(body.joint_indices.astype(np.int32).ravel()))
-        api.CreateJointWeightsPrimvar(False, k).Set(
-            Vt.FloatArray.FromNumpy(body.joint_weights.astype(np.float32).ravel()))
-        api.CreateGeomBindTransformAttr(Gf.Matrix4d(1.0))
-    return m
-
 
 def write_character(path, character: Character, items: list[Mesh] | None = None,
                     body: Mesh | None = None, up_axis: str | None = None,
@@ -500,44 +374,18 @@ def write_character(path, character: Character, items: list[Mesh] | None = None,
     items = character.items if items is None else items
     with atomic_output(path) as tmp:
         stage = Usd.Stage.CreateNew(tmp)
-        layout = _StageLayout(stage, up, mpu)
+        layout = StageLayout(stage, up, mpu)
         UsdSkel.Root.Define(stage, layout.skel_root)
         skel = character.skeleton
         if skel is not None:
-            _author_skeleton(layout, skel)
-        _author_body(layout, body, skel)
+            author_skeleton(layout, skel)
+        author_body(layout, body, skel)
         UsdGeom.Xform.Define(stage, layout.items_path)
         for item in items:
-            _author_static_item(layout, item, skel if skinned_items else None)
+            author_static_item(layout, item, skel if skinned_items else None)
         stage.SetStartTimeCode(0)
         stage.SetEndTimeCode(0)
         stage.SetTimeCodesPerSecond(character.time_codes_per_second)
         stage.SetFramesPerSecond(character.time_codes_per_second)
         stage.GetRootLayer().Save()
     return Path(path)
-
-
-def _author_static_item(layout, item: Mesh, skeleton: Skeleton | None):
-    from pxr import Gf, UsdGeom, UsdSkel, Vt
-    if skeleton is not None and item.joint_indices is not None:
-        ipath = layout.skel_root.AppendChild(_safe_name(item.name))
-    else:
-        ipath = layout.items_path.AppendChild(_safe_name(item.name))
-    pts = transform_points(item.points, layout.from_internal)
-    m = UsdGeom.Mesh.Define(layout.stage, ipath)
-    m.CreatePointsAttr(_vt_points(pts))
-    m.CreateExtentAttr(_extent(pts))
-    _author_mesh_topology(m, item)
-    if item.normals_interpolation is not None:
-        m.CreateNormalsAttr(_vt_points(vertex_normals(pts, item.faces) * (-1 if item.left_handed else 1)))
-        m.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
-    if skeleton is not None and item.joint_indices is not None:
-        api = UsdSkel.BindingAPI.Apply(m.GetPrim())
-        api.CreateSkeletonRel().SetTargets([layout.skel_path])
-        k = item.joint_indices.shape[1]
-        api.CreateJointIndicesPrimvar(False, k).Set(
-            Vt.IntArray.FromNumpy(item.joint_indices.astype(np.int32).ravel()))
-        api.CreateJointWeightsPrimvar(False, k).Set(
-            Vt.FloatArray.FromNumpy(item.joint_weights.astype(np.float32).ravel()))
-        api.CreateGeomBindTransformAttr(Gf.Matrix4d(1.0))
-    return m

@@ -27,10 +27,11 @@ from pathlib import Path
 
 import numpy as np
 
+from ..geometry.closest import VertexNormals
 from ..model import Character, Mesh
 from ..transforms import decompose, quat_from_matrix, transform_points
-from .usd import (_author_body, _author_mesh_topology, _author_skeleton, _extent,
-                     _safe_name, _StageLayout, _vt_points)
+from .usd_author import (StageLayout, author_body, author_mesh_topology, author_skeleton,
+                         author_static_item, prim_name, vt_extent, vt_points)
 
 
 class ShotWriter:
@@ -74,36 +75,34 @@ class ShotWriter:
         self.stage = Usd.Stage.CreateNew(tmp)
         up = up_axis or target.up_axis
         mpu = meters_per_unit or target.meters_per_unit
-        self.layout = _StageLayout(self.stage, up, mpu)
+        self.layout = StageLayout(self.stage, up, mpu)
         UsdSkel.Root.Define(self.stage, self.layout.skel_root)
         self._skel_out = None
         if target.skeleton is not None:
-            _, self._skel_out = _author_skeleton(self.layout, target.skeleton)
-        _author_body(self.layout, target.body, target.skeleton)
+            _, self._skel_out = author_skeleton(self.layout, target.skeleton)
+        author_body(self.layout, target.body, target.skeleton)
         UsdGeom.Xform.Define(self.stage, self.layout.items_path)
         self._item_prims = []
-        from ..geometry.closest import VertexNormals
         self._normals = [VertexNormals(m.faces, m.n_points) for m in self.items]
         names = set()
         for item in self.items:
-            name = _safe_name(item.name)
+            name = prim_name(item.name)
             while name in names:
                 name += "_"
             names.add(name)
             ipath = self.layout.items_path.AppendChild(name)
             mesh = UsdGeom.Mesh.Define(self.stage, ipath)
             pts = transform_points(item.points, self.layout.from_internal)
-            _author_mesh_topology(mesh, item)
+            author_mesh_topology(mesh, item)
             if not self.clip_frames:
                 # default = reference shape, for tools that read without a time
                 # code (a default in the shot layer would hide value clips)
-                mesh.CreatePointsAttr(_vt_points(pts))
-                mesh.CreateExtentAttr(_extent(pts))
+                mesh.CreatePointsAttr(vt_points(pts))
+                mesh.CreateExtentAttr(vt_extent(pts))
             self._item_prims.append(ipath)
         self.skinned_items = list(skinned_items or [])
-        from .usd import _author_static_item
         for item in self.skinned_items:
-            _author_static_item(self.layout, item, target.skeleton)
+            author_static_item(self.layout, item, target.skeleton)
         self.stage.SetStartTimeCode(0)
         self.stage.SetEndTimeCode(max(self.n_frames - 1, 0))
         self.stage.SetTimeCodesPerSecond(self.fps)
@@ -220,13 +219,13 @@ class ShotWriter:
         # change notice per frame instead of one per attribute (2-3x faster)
         with Sdf.ChangeBlock():
             for i, (item, p, (pa, ea, na, va)) in enumerate(zip(self.items, pts, paths)):
-                layer.SetTimeSample(pa, frame, _vt_points(p))
-                layer.SetTimeSample(ea, frame, _extent(p))
+                layer.SetTimeSample(pa, frame, vt_points(p))
+                layer.SetTimeSample(ea, frame, vt_extent(p))
                 if na is not None:
                     n = self._normals[i](p) * (-1 if item.left_handed else 1)
-                    layer.SetTimeSample(na, frame, _vt_points(n))
+                    layer.SetTimeSample(na, frame, vt_points(n))
                 if vel is not None:
-                    layer.SetTimeSample(va, frame, _vt_points(vel[i]))
+                    layer.SetTimeSample(va, frame, vt_points(vel[i]))
         self._written[frame] = True
 
     # ------------------------------------------------------------------

@@ -38,7 +38,7 @@ import numpy as np
 
 from ..io.bvh import BVHMotion
 from ..errors import InputError
-from .joint_maps import JointMapping, map_joints, normalize
+from .joint_maps import JointMapping, map_joints, normalize, roles
 from ..model import Skeleton
 from ..transforms import (invert, matrix_from_quat, quat_from_matrix, quat_slerp,
                          rotation_between, rotation_part)
@@ -289,7 +289,6 @@ def _clip_hip_height(motion: BVHMotion, rest: np.ndarray, root: int) -> float:
 def _find_foot(names, parents, root):
     """Index of the lowest-level joint of a leg in the rest pose below the
     root: the deepest joint of the leg subtree before the toes (by role)."""
-    from .joint_maps import roles
     r = roles(names)
     for key in ("foot_l", "foot_r"):
         if key in r:

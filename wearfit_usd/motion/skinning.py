@@ -20,9 +20,10 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..transforms import invert
+from ..types import JointIndices, Matrices4, Points, Weights
 
 
-def skinning_matrices(bind_world: np.ndarray, posed_world: np.ndarray) -> np.ndarray:
+def skinning_matrices(bind_world: Matrices4, posed_world: np.ndarray) -> np.ndarray:
     """inv(bind) @ posed. bind_world (J, 4, 4), posed_world (..., J, 4, 4)
     -> (..., J, 4, 4)."""
     return invert(bind_world) @ posed_world
@@ -34,7 +35,7 @@ class Skinner:
     points (N, 3), joint_indices / joint_weights (N, K), n_joints J.
     """
 
-    def __init__(self, points: np.ndarray, joint_indices: np.ndarray, joint_weights: np.ndarray,
+    def __init__(self, points: Points, joint_indices: JointIndices, joint_weights: Weights,
                  n_joints: int | None = None):
         points = np.asarray(points, dtype=np.float64)
         ji = np.asarray(joint_indices, dtype=np.int64)
@@ -60,7 +61,7 @@ class Skinner:
         return out.reshape(-1, f, 3).transpose(1, 0, 2)
 
 
-def skin_points(points: np.ndarray, joint_indices: np.ndarray, joint_weights: np.ndarray,
+def skin_points(points: Points, joint_indices: JointIndices, joint_weights: Weights,
                 skin_mats: np.ndarray) -> np.ndarray:
     """Skin (N, 3) points with (N, K) influences by (J, 4, 4) or (F, J, 4, 4)
     skinning matrices. Returns (N, 3) or (F, N, 3). Builds a

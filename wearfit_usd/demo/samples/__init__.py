@@ -16,8 +16,10 @@ meshed independently at another resolution (different topology).
 """
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
+from ...io.usd import write_character
 from .body import (PRESETS, REMESHED_TARGETS, SAME_TOPOLOGY_TARGETS, BodyParams, body_params,
                    make_body, morph_body)
 from .items import CLEARANCE, make_items
@@ -28,7 +30,8 @@ __all__ = ["PRESETS", "SAME_TOPOLOGY_TARGETS", "REMESHED_TARGETS", "BodyParams",
 
 
 def __getattr__(name):
-    # lazy, so that ``python3 -m wearfit_usd.samples.motions`` runs cleanly
+    # motions is imported lazily (here and below), so that
+    # ``python3 -m wearfit_usd.demo.samples.motions`` runs cleanly
     if name == "CLIPS":
         from .motions import CLIPS
         return CLIPS
@@ -55,7 +58,6 @@ def write_sample_set(out_dir, targets: list[str] | None = None) -> dict[str, Pat
     Stages are Y up, metres, 30 time codes/s. Returns {"reference": path,
     "target_<name>": path, ...}.
     """
-    from ...io.usd import write_character
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     ref = make_body("reference")
@@ -78,7 +80,6 @@ def motion_path(name: str) -> Path:
     pkg = Path(__file__).resolve().parents[2] / "motions" / f"{name}.bvh"
     if pkg.exists():
         return pkg
-    import os
     from .motions import write_clips
     cache = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "wearfit_usd" / "motions"
     target = cache / f"{name}.bvh"

@@ -15,6 +15,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, fields
 
 import numpy as np
+import scipy.sparse as sp
 
 from ...model import Character, Mesh, Skeleton
 from ...io.usd import triangulate
@@ -286,7 +287,6 @@ def skin_weights(lay: BodyLayout, points: np.ndarray, quads: np.ndarray, k: int 
                  diffuse: int = 22):
     """(N, k) joint indices and weights: one-hot on the bone of the nearest
     primitive, diffused over the mesh ``diffuse`` times, top ``k`` kept."""
-    import scipy.sparse as sp
     lab = lay.solid.labels(points)
     bone_of_prim = np.array([JOINT_NAMES.index(b) for b in lay.solid.bones()])
     n = len(points)
@@ -308,8 +308,7 @@ def skin_weights(lay: BodyLayout, points: np.ndarray, quads: np.ndarray, k: int 
 def mesh_solid(solid: Solid, resolution: float, relax_iters: int = 4):
     """Mesh a solid: surface nets on a grid of ``resolution`` metres, then
     projection onto f = 0 and relaxation. Returns points (N, 3), quads (Q, 4)."""
-    los, his = zip(*solid._boxes)
-    # the boxes include the evaluation band; shrink back to the solid plus two cells
+    # the solid's bounds plus a few cells;
     # an irrational grid offset keeps symmetric features off grid diagonals
     lo = np.min([p.bounds(0.0)[0] for p in solid.primitives], axis=0) - (3 + 0.318) * resolution
     hi = np.max([p.bounds(0.0)[1] for p in solid.primitives], axis=0) + 3 * resolution

@@ -15,6 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+import scipy.sparse as sp
 
 
 @dataclass
@@ -349,7 +350,6 @@ def surface_nets(values: np.ndarray, origin: np.ndarray, h: float):
 
 def vertex_adjacency(n: int, polys: np.ndarray):
     """Row-normalised (n, n) sparse adjacency of a polygon mesh (fixed arity)."""
-    import scipy.sparse as sp
     a = polys.ravel()
     b = np.roll(polys, -1, axis=1).ravel()
     rows = np.concatenate([a, b])

@@ -16,9 +16,12 @@ faceVarying for grids) and a display colour.
 from __future__ import annotations
 
 import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
 
 from ...model import Character, Mesh, Primvar
-from ...io.usd import triangulate, vertex_normals
+from ...geometry.closest import vertex_normals
+from ...io.usd import triangulate
 from .body import JOINT_NAMES, body_params, layout
 from .implicit import Solid, relax_on_surface
 
@@ -196,8 +199,6 @@ def _offset_patch(name: str, body: Mesh, solid: Solid, clearance: float, parts, 
     quads = body.face_vertex_indices.reshape(-1, 4)
     qk = quads[keep[quads].all(axis=1)]
     # connected components over the kept quads; keep the largest ones
-    import scipy.sparse as sp
-    from scipy.sparse.csgraph import connected_components
     nq = len(qk)
     a = np.repeat(np.arange(nq), 4)
     g = sp.coo_matrix((np.ones(4 * nq), (a, qk.ravel())), shape=(nq, len(p0))).tocsr()

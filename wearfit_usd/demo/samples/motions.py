@@ -25,7 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ...io.bvh import axis_rotation
+from ...io.bvh import write_bvh
+from ...transforms import axis_rotation, matrix_to_euler
 
 FPS = 30
 FRAMES = 60
@@ -171,7 +172,6 @@ def make_clip(name: str):
 
 def write_clips(out_dirs) -> dict[str, list[Path]]:
     """Write every clip as ``<name>.bvh`` into each folder of ``out_dirs``."""
-    from ...io.bvh import matrix_to_euler, write_bvh
     written: dict[str, list[Path]] = {}
     for name in CLIPS:
         root, rot = make_clip(name)
