@@ -1,0 +1,216 @@
+"""Repairs of dressed items on a given body (plain numpy; lengths in metres).
+
+- :func:`release_misfits`: rigid groups that do not fit this body are
+  released to the binding before the plan is applied;
+- :func:`untangle_items`: after the penetration and layer passes, the
+  neighbourhoods of folded item triangles and badly stretched edges are
+  re-solved so they deform like the body under them (:mod:`untangle`), within
+  the body's own stretch range (:func:`stretch_limits`).
+"""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from . import untangle as U
+from .body_stretch import skin_range, stretch_range, vertex_stretch
+from .corrections import off_skin
+from .layers import keep_layers
+from .plan import DressPlan
+from ..geometry.closest import SurfaceQuery
+from ..geometry.mesh import edges
+
+UNTANGLE_CLEARANCE_DRIFT = 0.001  # m: the untangle may worsen an item's median clearance error by at most this
+RIGID_RELEASE = 0.05  # rigid groups with more of their vertices newly > 1 mm inside the target move freely
+RIGID_RELEASE_DEPTH = 0.01  # m: ... and those with a vertex newly deeper than this inside
+
+
+def release_misfits(plan_: DressPlan, body_points: np.ndarray, query: SurfaceQuery,
+                    fraction: float = RIGID_RELEASE, depth: float = 0.001,
+                    max_depth: float = RIGID_RELEASE_DEPTH):
+    """The plan without the rigid groups that do not fit this body.
+
+    A rigid part follows its body patch's similarity; on a body that grew
+    unevenly under it (short hair on a head whose sides and nape grew more
+    than its top: 8.9 % of the hair 1-17 mm inside on the muscular-heavy
+    body), keeping it rigid means pushing those vertices out one by one,
+    which bends it anyway (16 mm off its similarity). Groups with more than
+    ``fraction`` of their vertices newly more than ``depth`` (m) inside the
+    body (query, on body_points (N, 3)) after the similarity placement
+    are released: they deform with the binding like any free part (hair
+    then lies on the new scalp). So are groups with any vertex newly more
+    than ``max_depth`` inside: pushing it out would bend the part by that
+    much (shoe collars around the muscular-heavy body's thicker ankles:
+    2.9 % of the shoe, 15-16 mm deep, bent 16.6 mm with 6 edges beyond the
+    shoe's own scale; released, the shoes follow the feet with no edge
+    beyond the body's stretch). Returns (plan, names of the items whose
+    groups were released)."""
+    if not plan_.rigid_groups:
+        return plan_, []
+    parts = plan_.rigid_parts
+    s, rot, t = parts.transforms(body_points)
+    pts = np.array(plan_.ref_points, dtype=np.float64, copy=True)
+    parts.place(s, rot, t, pts)
+    rows = np.concatenate(parts.groups)
+    depth_new = np.zeros(len(pts))
+    depth_new[rows] = -query.signed_distance(pts[rows])
+    new_in = (plan_.ref_clearance > 0) & (depth_new > depth)
+    fits = [np.mean(new_in[gv]) <= fraction and not np.any(new_in[gv] & (depth_new[gv] > max_depth))
+            for gv in parts.groups]
+    if all(fits):
+        return plan_, []
+
+    def item_name(gv):
+        return plan_.items[int(np.searchsorted(plan_.offsets, gv[0], side="right") - 1)].name
+
+    still = {item_name(gv) for gv, ok in zip(parts.groups, fits) if ok}
+    names = sorted({item_name(gv) for gv, ok in zip(parts.groups, fits) if not ok})
+    keep = [group for group, ok in zip(plan_.rigid_groups, fits) if ok]
+    return replace(plan_, rigid_groups=keep, rigid_items=[n for n in plan_.rigid_items if n in still]), names
+
+
+def untangle_items(plan_: DressPlan, body_points: np.ndarray, pts: np.ndarray, query: SurfaceQuery,
+                   target: np.ndarray, rigid_maps: list, bisect_steps: int = 5, relax: bool = True,
+                   footprints: dict | None = None, **kw):
+    """Run :func:`untangle.untangle` on redressed items (points (M, 3)):
+    vertex gradients from the binding (rigid parts: their similarity
+    ``s * rot`` from ``rigid_maps`` [(vertex indices, (3, 3))]), constraints
+    = :func:`push_out` to ``target`` (M,) clearance (m) and
+    :func:`keep_layers`, both restricted to the re-solved vertices. With
+    ``relax``, edges still outside the body's stretch range
+    (:func:`stretch_limits`) are then brought back into it
+    (:func:`untangle.relax_edges`, same constraints). footprints: the
+    closest body points of ``pts`` (:meth:`SurfaceQuery.closest` keys
+    distance, point, normal) if already known.
+    Returns (points (M, 3), touched (M,) bool, stats dict)."""
+    b = plan_.binding
+    tg = np.tile(np.eye(3), (len(b.faces), 1, 1))
+    tg[b.used] = U.triangle_gradients(plan_.ref_body, body_points, b.faces[b.used])
+    grad = U.vertex_gradients(tg, b.triangles, b.weights)
+    for gv, lin in rigid_maps:
+        grad[gv] = lin
+    faces = plan_.item_faces
+    if faces is None:
+        faces = np.concatenate([m.faces + a for m, a in zip(plan_.items, plan_.offsets[:-1])]).astype(np.int64)
+    item_edges = plan_.item_edges if plan_.item_edges is not None else edges(faces)
+    tgt = np.nan_to_num(np.asarray(target, dtype=np.float64), nan=-1.0)
+    known, footprints_in = footprints is not None, footprints
+    if plan_.layers and not known:
+        res = query.closest(pts)
+        footprints = {k: res[k] for k in ("distance", "point", "normal")}
+    elif known:
+        footprints = {k: v.copy() for k, v in footprints.items()}  # constrain updates them
+
+    def constrain(p, mask, before):
+        # push_out and keep_layers with one closest-point query of the masked
+        # vertices. A vertex the solve took inside goes back along its own
+        # path to where it re-enters its clearance (bisection between its
+        # valid position before the solve and the new one), not to the
+        # closest skin point, which can lie on the far side of a thin gap
+        # (armpit, crotch) and fold the patch.
+        sel = np.flatnonzero(mask)
+        res = query.closest(p[sel], ring=False)
+        solved = p
+        p = p.copy()
+        moved = np.zeros(len(p), dtype=bool)
+        inside = (res["distance"] < 0) & (tgt[sel] > 0)
+        pushed = sel[inside]
+        if len(pushed):
+            lo = np.zeros(len(pushed))  # fraction of the step known to be fine
+            hi = np.ones(len(pushed))
+            a, b = before[pushed], p[pushed]
+            for _ in range(bisect_steps):
+                mid = 0.5 * (lo + hi)
+                d = query.closest(a + mid[:, None] * (b - a), ring=False)["distance"]
+                ok = d >= np.minimum(tgt[pushed], 0.0005)
+                lo = np.where(ok, mid, lo)
+                hi = np.where(ok, hi, mid)
+            p[pushed] = a + lo[:, None] * (b - a)
+            # still inside (the start was inside too): closest skin point
+            r2 = query.closest(p[pushed])
+            bad = r2["distance"] < 0
+            p[pushed[bad]] = off_skin(r2, bad, tgt[pushed[bad]])
+            r2["distance"][bad] = tgt[pushed[bad]]
+            for k in ("distance", "point", "normal"):
+                res[k][inside] = r2[k]
+        moved[pushed] = True
+        if plan_.layers:
+            for k in footprints:
+                footprints[k][sel] = res[k]
+            p, moved2 = keep_layers(query, p, plan_.offsets, plan_.layers, mask=mask, footprints=footprints)
+            moved |= moved2
+        if moved.any():
+            # per-vertex pushes fold triangles whose corners got different
+            # pushes (slivers, concave creases): move such patches as a whole
+            p, lifted = U.lift_folds(plan_.ref_points, solved, p, faces, grad, moved)
+            moved |= lifted
+        return p, moved
+
+    detect = U.BadElements(plan_.ref_points, faces, item_edges, grad)
+    new, touched, stats = U.untangle(plan_.ref_points, pts, faces, item_edges, plan_.neighbours, grad,
+                                     constrain, detect=detect, **kw)
+    if relax:
+        # the edges the untangle left outside the body's own stretch range
+        # (its gradient field cannot be met across a seam between two body
+        # parts, and its constraints move single vertices again)
+        # (only edges outside the skin's own range can be outside the full
+        # range, which contains it: the full range is found for those and
+        # for the relaxed region only)
+        fixed = plan_.rigid_mask()
+        vr = vertex_stretch(b.triangles, plan_.ref_body, body_points, b.faces)
+        cand = np.flatnonzero(U.outside_range(plan_.ref_points, new, item_edges,
+                                              *skin_range(item_edges, vr), fixed))
+        if len(cand):
+            new, relaxed, st = U.relax_edges(
+                plan_.ref_points, new, item_edges,
+                lambda idx: stretch_limits(plan_, body_points, item_edges[idx], vr),
+                plan_.neighbours, fixed, constrain, faces, lambda p: detect(p)[0], candidates=cand)
+            touched |= relaxed
+            stats.update(st)
+    # the untangle must not trade the fit for shape: an item whose median
+    # clearance error (|clearance - reference clearance| over all its
+    # vertices, the dressing metric) grows by more than
+    # UNTANGLE_CLEARANCE_DRIFT keeps its redress (a thin closed tube such as
+    # a necklace, freed as a whole, can otherwise slide around the neck)
+    # (one query over the touched items before, one over the touched
+    # vertices after: the others kept their clearance)
+    kept = []
+    spans = [(item, a, b) for item, a, b in zip(plan_.items, plan_.offsets[:-1], plan_.offsets[1:])
+             if touched[a:b].any()]
+    rows = np.concatenate([np.arange(a, b) for _, a, b in spans]) if spans else np.zeros(0, dtype=np.int64)
+    d_before = np.zeros(len(pts))
+    if known:
+        d_before[rows] = footprints_in["distance"][rows]
+    else:
+        d_before[rows] = query.closest(pts[rows])["distance"]
+    d_after = d_before.copy()
+    tv = np.flatnonzero(touched)
+    d_after[tv] = query.closest(new[tv])["distance"]
+    for item, a, b in spans:
+        ref_c = plan_.ref_clearance[a:b]
+        err_before = np.median(np.abs(d_before[a:b] - ref_c))
+        err_after = np.median(np.abs(d_after[a:b] - ref_c))
+        if err_after > err_before + UNTANGLE_CLEARANCE_DRIFT:
+            new[a:b] = pts[a:b]
+            touched[a:b] = False
+            kept.append(item.name)
+    stats["reverted_items"] = kept
+    return new, touched, stats
+
+
+def stretch_limits(plan_: DressPlan, body_points: np.ndarray, item_edges: np.ndarray,
+                   vertex_range: tuple | None = None):
+    """(lo (E,), hi (E,)): the body's own stretch range (edge-length ratios,
+    :func:`body_stretch.stretch_range`) of item edges (E, 2) (stacked
+    indices) from the plan's reference body to ``body_points`` (N, 3), the
+    range :func:`metrics.shape_change` judges them by; vertex_range:
+    :func:`body_stretch.vertex_stretch` of the binding if already known."""
+    b = plan_.binding
+    if plan_.ref_foot is None:
+        res = SurfaceQuery(b.faces, plan_.ref_body).closest(plan_.ref_points)
+        foot = (res["triangle"], res["bary"])
+    else:
+        foot = plan_.ref_foot
+    return stretch_range(plan_.ref_points, item_edges, b.triangles, plan_.ref_body, body_points, b.faces,
+                         foot[0], foot[1], plan_.ref_clearance, vertex_range)
