@@ -40,7 +40,7 @@ def register(sub, common):
 
 def run(args) -> int:
     from ..progress import info
-    from ..dress.redress import dress
+    from ..dress.apply import dress
     from ..io.usd import read_character, write_character
 
     ref_path, tgt_path, out = Path(args.reference), Path(args.target), Path(args.output)

@@ -39,7 +39,7 @@ def run_demo(out_dir, shots=None, render: bool = True, size=(480, 360), gif: boo
     from ..animate.try_on import AnimateOptions, animate
     from ..io.bvh import read_bvh
     from ..dress.metrics import dress_report
-    from ..dress.redress import dress
+    from ..dress.apply import dress
     from .samples import motion_path, write_sample_set
     from ..io.usd import read_character, write_character
     from ..io.usd_validate import validate_stage

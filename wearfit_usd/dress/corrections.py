@@ -49,14 +49,24 @@ class LooseSmoother:
     diag(2 deg / w) d0_U - T L_UB d0_B`` with ``L = deg - adjacency`` the
     graph Laplacian and B their tight neighbours (fixed, d = d0). The matrix
     is symmetric positive definite: one sparse Cholesky, factorised once.
+
+    Attributes (read by :class:`animate.frame_eval.FrameEvaluator`, which
+    evaluates the same system with compiled loops):
+    free: (U,) the loose vertices; boundary: (B,) their tight neighbours;
+    ring: (U + B,) both, sorted; mass: (U,) ``2 deg / w``;
+    boundary_coupling: (U, B) sparse ``-T L_UB``; solver: the factorised
+    :class:`SPDSolver` of ``diag(mass) + T L_UU``, None when no vertex is
+    loose (:attr:`active` is then False and the smoother returns its input).
     """
 
     def __init__(self, neighbours: sp.spmatrix, weight: np.ndarray,
                  time_steps: int = LOOSE_ITERATIONS):
         w = np.asarray(weight, dtype=np.float64)
         idx = np.flatnonzero(w > 0)
-        self.ring = np.zeros(0, dtype=np.int64)
-        self._solver = None
+        self.free = self.boundary = self.ring = np.zeros(0, dtype=np.int64)
+        self.mass = np.zeros(0)
+        self.boundary_coupling = None
+        self.solver = None
         self._ref_src = None
         if len(idx) == 0 or time_steps <= 0:
             return
@@ -70,13 +80,30 @@ class LooseSmoother:
         self.ring = np.union1d(idx, self.boundary)
         t = float(time_steps)
         lap_uu = sp.diags(deg[idx]) - a[idx][:, idx]
-        self._lap_ub = (t * a[idx][:, self.boundary]).tocsr()  # -T L_UB (L_UB = -adjacency)
-        self._mass = 2.0 * np.maximum(deg[idx], 1.0) / w[idx]
-        self._solver = SPDSolver()
-        self._solver.factor((sp.diags(self._mass) + t * lap_uu).tocsc())
+        self.boundary_coupling = (t * a[idx][:, self.boundary]).tocsr()  # -T L_UB (L_UB = -adjacency)
+        self.mass = 2.0 * np.maximum(deg[idx], 1.0) / w[idx]
+        self.solver = SPDSolver()
+        self.solver.factor((sp.diags(self.mass) + t * lap_uu).tocsc())
+
+    @property
+    def active(self) -> bool:
+        """Whether any vertex is smoothed (a factorised system exists)."""
+        return self.solver is not None
+
+    # the compiled per-frame loops of animate.frame_eval still read these two
+    # names; they go once those lines read ``mass`` and ``solver``
+    @property
+    def _mass(self):
+        return self.mass
+
+    @property
+    def _solver(self):
+        return self.solver
 
     def __call__(self, points: np.ndarray, ref_points: np.ndarray) -> np.ndarray:
-        if self._solver is None:
+        """(M, 3) ``points`` with the displacement from ``ref_points`` (M, 3)
+        diffused over the loose vertices (the input itself if none)."""
+        if self.solver is None:
             return points
         u, b = self.free, self.boundary
         if ref_points is not self._ref_src:  # per-frame calls pass the same reference
@@ -84,11 +111,11 @@ class LooseSmoother:
             self._ref_u = np.take(ref_points, u, axis=0)
             self._ref_b = np.take(ref_points, b, axis=0)
         # np.take and a row-record scatter: 2-3x faster than fancy indexing of (M, 3)
-        rhs = self._mass[:, None] * (np.take(points, u, axis=0) - self._ref_u)
+        rhs = self.mass[:, None] * (np.take(points, u, axis=0) - self._ref_u)
         if len(b):
-            rhs += self._lap_ub @ (np.take(points, b, axis=0) - self._ref_b)
+            rhs += self.boundary_coupling @ (np.take(points, b, axis=0) - self._ref_b)
         out = np.array(points, dtype=np.float64, order="C", copy=True)
-        return assign_rows(out, u, self._ref_u + self._solver.solve(rhs))
+        return assign_rows(out, u, self._ref_u + self.solver.solve(rhs))
 
 
 def off_skin(res: dict, rows, clearance: np.ndarray) -> np.ndarray:
