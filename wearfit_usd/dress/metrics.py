@@ -10,7 +10,7 @@ import numpy as np
 from . import untangle as U
 from .body_stretch import stretch_range
 from ..geometry.closest import SurfaceQuery
-from ..geometry.mesh import edges, similarity_fit
+from ..geometry.mesh import edges, nondegenerate, similarity_fit
 
 
 def _frames(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -40,13 +40,14 @@ def flip_and_stretch(ref_pts: np.ndarray, new_pts: np.ndarray, faces: np.ndarray
     A triangle is flipped when its normal, turned by its body triangle's local
     rotation, opposes the new normal; an edge is over-stretched when its length
     ratio leaves [0.8, 1.25] x the range of its body triangle's edge ratios.
+    Zero-area reference triangles (:func:`geometry.mesh.nondegenerate`) have
+    no normal and are left out of the flipped percentage.
     """
     fr, ft = _frames(ref_body, body_faces), _frames(fit_body, body_faces)
     t = tri0[faces[:, 0]]
     rot = np.einsum("tji,tjk->tik", fr[t], ft[t])  # row-vector rotation ref -> target
     nr, nt = _unit_normals(ref_pts, faces), _unit_normals(new_pts, faces)
-    ok = np.linalg.norm(np.cross(ref_pts[faces[:, 1]] - ref_pts[faces[:, 0]],
-                                 ref_pts[faces[:, 2]] - ref_pts[faces[:, 0]]), axis=1) > 1e-12
+    ok = nondegenerate(ref_pts, faces)
     flipped = (np.einsum("ti,tij,tj->t", nr, rot, nt) < 0) & ok
     e = edges(faces)
     lr = np.linalg.norm(ref_pts[e[:, 0]] - ref_pts[e[:, 1]], axis=1)
