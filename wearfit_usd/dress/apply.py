@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 import scipy.sparse as sp
@@ -42,7 +43,6 @@ def fitted_body_points(ref: Character, target: Character) -> np.ndarray:
     return np.asarray(fit_character(ref, target).points, dtype=np.float64)
 
 
-
 @dataclass
 class DressResult:
     items: list[Mesh]          # redressed items (internal space), names/topology as the reference
@@ -54,38 +54,83 @@ class DressResult:
     timings: dict
 
 
-def apply(plan_: DressPlan, body_points: np.ndarray, body_faces: np.ndarray,
-          penetration: bool = True, query: SurfaceQuery | None = None, margin: float = 0.003,
-          near_other: float = 0.03, push_inherited: bool = False, inherited_clearance: float = 0.001,
-          untangle: bool = True, spread: bool = True):
-    """Evaluate a plan on fitted body points (reference topology).
+@dataclass(frozen=True)
+class PassOptions:
+    """Options of the passes that correct an evaluated plan (see :func:`apply`).
 
-    Vertices that end inside the body but were outside the reference body
-    are pushed out to their reference clearance. Those that were inside the
-    reference body already keep their (negative) reference clearance, as
-    every other vertex does: dressing the reference onto its own shape gives
-    the reference back. With ``push_inherited`` the ones deeper than
-    ``inherited_clearance`` are pushed out to that clearance instead (a flaw
-    of the asset, e.g. a tight suit fitted by MakeHuman, which hides the skin
-    under clothes with ``delete_verts``: the skin would show through); this
-    repair flattens folds that dip into the body and so shortens their
-    edges. Vertices of the plan's rigid groups always keep such authored
-    insets (they move as a whole; a shoe's insole stays inside the sole also
-    where :func:`release_misfits` freed the shoe on this body).
-
-    spread: the penetration and layer passes move single vertices; spread
-    their corrections smoothly over the item mesh (:func:`spread_corrections`,
-    every vertex at least as far as its own correction; rigid parts
-    excluded) instead of only smoothing their 1-ring.
-
-    untangle: after the penetration and layer passes, re-solve the
-    neighbourhoods of folded item triangles and badly stretched edges so they
-    deform like the body under them, under the same constraints
-    (:func:`untangle_items`; only with ``penetration``).
-
-    Returns (points (M, 3), free points (M, 3), moved (M,) bool, timings).
+    margin: m, vertices whose estimated clearance is below this get the exact
+        penetration test;
+    near_other: m, ... and so do those this close to a body vertex of another
+        region than their own;
+    push_inherited, inherited_clearance: push vertices that were already
+        deeper than ``inherited_clearance`` (m) inside the reference body out
+        to that clearance;
+    spread: spread the single-vertex corrections over the item mesh;
+    untangle: re-solve folded or over-stretched patches afterwards.
     """
-    t0 = time.perf_counter()
+    margin: float = 0.003
+    near_other: float = 0.03
+    push_inherited: bool = False
+    inherited_clearance: float = 0.001
+    spread: bool = True
+    untangle: bool = True
+
+
+class Evaluation(NamedTuple):
+    """The plan evaluated on a body, before any correction."""
+    free: np.ndarray        # (M, 3) the binding's result
+    points: np.ndarray      # (M, 3) with the rigid parts placed and the loose parts smoothed
+    rigid_maps: list        # [(vertex indices (P,), linear part s * rot (3, 3))] per rigid group
+
+
+class Candidates(NamedTuple):
+    """The vertices the penetration pass tests, and the clearance estimates that chose them."""
+    mask: np.ndarray        # (M,) bool: vertices to test exactly
+    local: np.ndarray       # (M,) signed distance to the vertex's own bound triangles (m)
+    estimate: np.ndarray    # (M,) clearance through the nearest body vertex and its normal (m)
+
+
+class Corrected(NamedTuple):
+    """Item points after a correction pass."""
+    points: np.ndarray      # (M, 3)
+    moved: np.ndarray       # (M,) bool: vertices the pass moved
+
+
+class Applied(NamedTuple):
+    """The result of :func:`apply`."""
+    points: np.ndarray      # (M, 3) the dressed item points
+    free: np.ndarray        # (M, 3) the binding's result before rigid parts and corrections
+    moved: np.ndarray       # (M,) bool: vertices the correction passes moved
+    timings: dict           # seconds per step
+
+
+class Footprints:
+    """The closest body points of item points (:meth:`SurfaceQuery.closest`
+    keys ``distance`` (M,), ``point`` (M, 3), ``normal`` (M, 3) in
+    :attr:`closest`), kept current by re-querying only the vertices that
+    moved since their footprint was taken (:meth:`refresh`)."""
+
+    KEYS = ("distance", "point", "normal")
+
+    def __init__(self, query: SurfaceQuery, points: np.ndarray):
+        res = query.closest(points)
+        self.query = query
+        self.closest = {k: res[k] for k in self.KEYS}
+        self._taken_at = points.copy()
+
+    def refresh(self, points: np.ndarray) -> None:
+        """Re-query the vertices of ``points`` (M, 3) that moved."""
+        sv = np.flatnonzero((points != self._taken_at).any(axis=1))
+        res = self.query.closest(points[sv])
+        for k in self.closest:
+            self.closest[k][sv] = res[k]
+        self._taken_at[sv] = points[sv]
+
+
+def evaluate(plan_: DressPlan, body_points: np.ndarray) -> Evaluation:
+    """The plan on body points (N, 3) of its body topology: the binding, the
+    rigid parts placed by their similarity transforms, the loose parts
+    smoothed (:class:`corrections.LooseSmoother`)."""
     free = plan_.binding.evaluate(body_points)
     pts = free.copy()
     rigid_maps = []
@@ -96,111 +141,205 @@ def apply(plan_: DressPlan, body_points: np.ndarray, body_faces: np.ndarray,
         rigid_maps = [(gv, s[i] * rot[i]) for i, gv in enumerate(parts.groups)]
     if plan_.smoother is not None:
         pts = plan_.smoother(pts, plan_.ref_points)
+    return Evaluation(free, pts, rigid_maps)
+
+
+def clearance_targets(plan_: DressPlan, push_inherited: bool, inherited_clearance: float) -> np.ndarray:
+    """(M,) clearance (m) each vertex is pushed out to if found inside the
+    body, NaN = leave it: the reference clearance where it was outside the
+    reference body; with ``push_inherited``, ``inherited_clearance`` where it
+    was deeper than that inside it.
+
+    Inherited penetrations only deeper than inherited_clearance (skin showing
+    through); shallower ones lie on the skin (eyebrows) and are left alone.
+    Rigid parts keep their authored insets (a shoe's insole 0.5-5 mm inside
+    the foot sole, hair-card roots under the scalp): they move as a whole,
+    and pushing single vertices of them out to the surface is what bent them
+    (every over-stretched shoe and short-hair edge on the reference-shaped
+    CMU-rig body came from it); they are still pushed out where they newly
+    penetrate.
+    """
+    inherited = push_inherited & (plan_.ref_clearance < -inherited_clearance)
+    # (the plan's rigid parts, also when released on this body)
+    inherited &= ~(plan_.insets_kept if plan_.insets_kept is not None else plan_.rigid_mask())
+    return np.where(plan_.ref_clearance > 0, plan_.ref_clearance,
+                    np.where(inherited, inherited_clearance, np.nan))
+
+
+def penetration_candidates(plan_: DressPlan, body_points: np.ndarray, body_faces: np.ndarray, points: np.ndarray,
+                           margin: float, near_other: float) -> Candidates:
+    """The item vertices (points (M, 3)) that may be inside the body (N, 3):
+    a cheap local test against each vertex's own bound triangles picks those
+    close to (or inside) them, or close to another body region (a posed limb
+    pressing into the torso...); a bulge of the same region (a heavier belly
+    or thigh under a loose skirt) is far from the vertex's own triangles, so
+    the clearance is also estimated through the nearest body vertex and its
+    normal. Only these get the exact signed-distance query."""
+    d_loc, _ = local_signed_distance(plan_.binding, body_points, points)
+    cand = d_loc < margin
+    dn, vn = cKDTree(body_points).query(points, k=1)
+    cand |= (plan_.body_labels[vn] != plan_.labels) & (dn < near_other)
+    normals = VertexNormals(body_faces, len(body_points))(body_points)
+    est = np.einsum("ij,ij->i", points - body_points[vn], normals[vn])
+    cand |= est < margin
+    return Candidates(cand, d_loc, est)
+
+
+def ring_neighbours(plan_: DressPlan, spread: bool) -> sp.csr_matrix:
+    """The adjacency :func:`corrections.push_out` smooths the 1-ring of pushed
+    vertices over: the item mesh's; with ``spread`` only the rigid parts'
+    (the others' corrections are spread by :func:`spread_pass` instead)."""
+    if not spread:
+        return plan_.neighbours
+    rig = plan_.rigid_mask()
+    return (sp.diags(rig.astype(np.float64)) @ plan_.neighbours @ sp.diags(rig.astype(np.float64))
+            + sp.diags((~rig).astype(np.float64))).tocsr()
+
+
+def push_out_pass(plan_: DressPlan, query: SurfaceQuery, points: np.ndarray, target: np.ndarray,
+                  candidates: np.ndarray, ring: sp.spmatrix) -> Corrected:
+    """Push the ``candidates`` (M,) bool found inside the body out to their
+    ``target`` clearance (:func:`corrections.push_out`, smoothing the 1-ring
+    over ``ring``); where that moved loose parts, spread the push over their
+    neighbourhood (a smooth bulge, not a spike) and push out what went back
+    inside."""
+    pts, moved = push_out(query, points, target, mask=candidates, neighbours=ring)
+    if plan_.smoother is not None and np.any(moved & (plan_.looseness > 0)):
+        pts = plan_.smoother(pts, plan_.ref_points)
+        again = candidates | moved
+        pts, moved_again = push_out(query, pts, target, mask=again, neighbours=ring)
+        moved |= moved_again
+    return Corrected(pts, moved)
+
+
+def spread_pass(plan_: DressPlan, before: np.ndarray, single: np.ndarray, moved: np.ndarray) -> Corrected:
+    """The single-vertex corrections ``single - before`` (M, 3) (of the
+    ``moved`` (M,) bool vertices and any other that changed) spread smoothly
+    over the item mesh (:func:`corrections.spread_corrections`, rigid parts
+    excluded): single-vertex corrections stretch every edge at them. An item
+    the spread would move as a whole (a thin necklace lifted over a shirt)
+    keeps the single-vertex corrections: the spread may change its median
+    clearance by at most ``SPREAD_CLEARANCE_DRIFT`` (its extra displacement
+    bounds the clearance change). Returns the points and the vertices the
+    spread moved."""
+    req = moved | (np.abs(single - before).max(axis=1) > 1e-6)
+    pts, spread_v = spread_corrections(plan_.ref_points, before, single, req, plan_.neighbours,
+                                       fixed=plan_.rigid_mask())
+    extra = np.linalg.norm(pts - single, axis=1)
+    for a, b in zip(plan_.offsets[:-1], plan_.offsets[1:]):
+        if spread_v[a:b].any() and np.median(extra[a:b]) > SPREAD_CLEARANCE_DRIFT:
+            pts[a:b] = single[a:b]
+            spread_v[a:b] = False
+    return Corrected(pts, spread_v)
+
+
+def recheck_spread(plan_: DressPlan, query: SurfaceQuery, before: np.ndarray, spread: Corrected,
+                   target: np.ndarray, candidates: Candidates, margin: float,
+                   footprints: Footprints | None) -> Corrected:
+    """The vertices a spread moved, checked once more: only those it moved by
+    more than their estimated clearance (less the margin) can have gone
+    inside the body (pushed out again), and the outer layers among them are
+    kept over the items under them. Returns the points and every vertex
+    moved (the spread's included)."""
+    shift = np.linalg.norm(spread.points - before, axis=1)
+    check = spread.moved & (np.minimum(candidates.local, candidates.estimate) < shift + margin)
+    pts, pushed = push_out(query, spread.points, target, mask=check)
+    moved = spread.moved | pushed
+    if plan_.layers:
+        footprints.refresh(pts)
+        pts, lifted = keep_layers(query, pts, plan_.offsets, plan_.layers, mask=spread.moved,
+                                  footprints=footprints.closest)
+        moved |= lifted
+    return Corrected(pts, moved)
+
+
+def correct_penetrations(plan_: DressPlan, body_points: np.ndarray, body_faces: np.ndarray, query: SurfaceQuery,
+                         points: np.ndarray, target: np.ndarray, options: PassOptions):
+    """The penetration and layer passes on evaluated item points (M, 3):
+    vertices found inside the body pushed out to their ``target`` clearance
+    (:func:`clearance_targets`), outer layers kept over the items under them
+    (:func:`layers.keep_layers`), and with ``options.spread`` these
+    single-vertex corrections spread over the item mesh and checked again.
+    Returns (:class:`Corrected`, :class:`Footprints` of the result or None
+    when the plan has no layers)."""
+    cand = penetration_candidates(plan_, body_points, body_faces, points, options.margin, options.near_other)
+    debug(f"penetration pass: {int(cand.mask.sum())} of {len(cand.mask)} vertices tested")
+    # with ``spread`` the per-vertex corrections are made alone and then
+    # spread over the item mesh, which replaces push_out's light smoothing
+    # of the 1-ring (rigid parts, not spread, keep it)
+    pts, moved = push_out_pass(plan_, query, points, target, cand.mask, ring_neighbours(plan_, options.spread))
+    footprints = None
+    if plan_.layers:
+        # layers keep their order: an outer item stays over the item under it
+        footprints = Footprints(query, pts)
+        pts, lifted = keep_layers(query, pts, plan_.offsets, plan_.layers, footprints=footprints.closest)
+        moved |= lifted
+    if options.spread:
+        spread = spread_pass(plan_, points, pts, moved)
+        pts = spread.points
+        if spread.moved.any():
+            rechecked = recheck_spread(plan_, query, points, spread, target, cand, options.margin, footprints)
+            pts = rechecked.points
+            moved |= rechecked.moved
+    if footprints is not None:
+        footprints.refresh(pts)  # for the untangle
+    return Corrected(pts, moved), footprints
+
+
+def apply(plan_: DressPlan, body_points: np.ndarray, body_faces: np.ndarray, penetration: bool = True,
+          query: SurfaceQuery | None = None, options: PassOptions | None = None) -> Applied:
+    """Evaluate a plan on fitted body points (N, 3) of its body topology
+    (faces (T, 3)) and, with ``penetration``, correct the result.
+
+    Vertices that end inside the body but were outside the reference body
+    are pushed out to their reference clearance. Those that were inside the
+    reference body already keep their (negative) reference clearance, as
+    every other vertex does: dressing the reference onto its own shape gives
+    the reference back. With ``options.push_inherited`` the ones deeper than
+    ``options.inherited_clearance`` are pushed out to that clearance instead
+    (a flaw of the asset, e.g. a tight suit fitted by MakeHuman, which hides
+    the skin under clothes with ``delete_verts``: the skin would show
+    through); this repair flattens folds that dip into the body and so
+    shortens their edges. Vertices of the plan's rigid groups always keep
+    such authored insets (they move as a whole; a shoe's insole stays inside
+    the sole also where :func:`repair.release_misfits` freed the shoe on this
+    body).
+
+    options.spread: the penetration and layer passes move single vertices;
+    spread their corrections smoothly over the item mesh
+    (:func:`corrections.spread_corrections`, every vertex at least as far as
+    its own correction; rigid parts excluded) instead of only smoothing their
+    1-ring.
+
+    options.untangle: after the penetration and layer passes, re-solve the
+    neighbourhoods of folded item triangles and badly stretched edges so they
+    deform like the body under them, under the same constraints
+    (:func:`repair.untangle_items`; only with ``penetration``).
+
+    query: a :class:`SurfaceQuery` on ``body_points`` if already built.
+    Returns :class:`Applied` (points (M, 3), free points (M, 3), moved (M,)
+    bool, timings).
+    """
+    options = options or PassOptions()
+    t0 = time.perf_counter()
+    ev = evaluate(plan_, body_points)
     t1 = time.perf_counter()
-    moved = np.zeros(len(pts), dtype=bool)
+    pts, moved = ev.points, np.zeros(len(ev.points), dtype=bool)
     if penetration:
         if query is None:
             query = SurfaceQuery(body_faces, body_points)
-        # cheap local test against the vertex's own bound triangles: only
-        # vertices close to (or inside) them, or close to another body
-        # region (a posed limb pressing into the torso...), get the exact
-        # signed-distance query
-        d_loc, _ = local_signed_distance(plan_.binding, body_points, pts)
-        cand = d_loc < margin
-        dn, vn = cKDTree(body_points).query(pts, k=1)
-        cand |= (plan_.body_labels[vn] != plan_.labels) & (dn < near_other)
-        # a bulge of the same region (a heavier belly or thigh under a loose
-        # skirt) is far from the vertex's own triangles: estimate the
-        # clearance through the nearest body vertex and its normal too
-        normals = VertexNormals(body_faces, len(body_points))(body_points)
-        est = np.einsum("ij,ij->i", pts - body_points[vn], normals[vn])
-        cand |= est < margin
-        # inherited: only deeper than inherited_clearance (skin showing through);
-        # shallower ones lie on the skin (eyebrows) and are left alone. Rigid
-        # parts keep their authored insets (a shoe's insole 0.5-5 mm inside
-        # the foot sole, hair-card roots under the scalp): they move as a
-        # whole, and pushing single vertices of them out to the surface is
-        # what bent them (every over-stretched shoe and short-hair edge on
-        # the reference-shaped CMU-rig body came from it); they are still
-        # pushed out where they newly penetrate
-        rig = plan_.rigid_mask()
-        inherited = push_inherited & (plan_.ref_clearance < -inherited_clearance)
-        # (the plan's rigid parts, also when released on this body)
-        inherited &= ~(plan_.insets_kept if plan_.insets_kept is not None else rig)
-        target = np.where(plan_.ref_clearance > 0, plan_.ref_clearance,
-                          np.where(inherited, inherited_clearance, np.nan))
-        debug(f"penetration pass: {int(cand.sum())} of {len(cand)} vertices tested")
-        # with ``spread`` the per-vertex corrections are made alone and then
-        # spread over the item mesh (spread_corrections), which replaces
-        # push_out's light smoothing of the 1-ring
-        before = pts
-        ring_nb = plan_.neighbours
-        if spread:  # rigid parts (not spread) keep the 1-ring smoothing
-            ring_nb = (sp.diags(rig.astype(np.float64)) @ plan_.neighbours @ sp.diags(rig.astype(np.float64))
-                       + sp.diags((~rig).astype(np.float64))).tocsr()
-        pts, moved = push_out(query, pts, target, mask=cand, neighbours=ring_nb)
-        if plan_.smoother is not None and np.any(moved & (plan_.looseness > 0)):
-            # loose parts: spread the push over the neighbourhood (a smooth
-            # bulge, not a spike), then push out what went back inside
-            pts = plan_.smoother(pts, plan_.ref_points)
-            again = cand | moved
-            pts, moved2 = push_out(query, pts, target, mask=again, neighbours=ring_nb)
-            moved |= moved2
-        footprints = None
-        if plan_.layers:
-            # layers keep their order: an outer item stays over the item under it
-            res = query.closest(pts)
-            footprints = {k: res[k] for k in ("distance", "point", "normal")}
-            foot_at = pts.copy()  # where each footprint was taken
-
-            def refresh_footprints(pts):
-                # re-query the vertices moved since their footprint was taken
-                sv = np.flatnonzero((pts != foot_at).any(axis=1))
-                res = query.closest(pts[sv])
-                for k in footprints:
-                    footprints[k][sv] = res[k]
-                foot_at[sv] = pts[sv]
-            pts, moved3 = keep_layers(query, pts, plan_.offsets, plan_.layers, footprints=footprints)
-            moved |= moved3
-        if spread:
-            # single-vertex corrections stretch every edge at them: spread
-            # them smoothly over the item, each vertex still at least as far
-            # as its own; then check the spread vertices once more
-            req = moved | (np.abs(pts - before).max(axis=1) > 1e-6)
-            single = pts
-            pts, spread_v = spread_corrections(plan_.ref_points, before, single, req, plan_.neighbours, fixed=rig)
-            # an item the spread would move as a whole (a thin necklace lifted
-            # over a shirt) keeps the single-vertex corrections: the spread
-            # may change its median clearance by at most SPREAD_CLEARANCE_DRIFT
-            # (its extra displacement bounds the clearance change)
-            extra = np.linalg.norm(pts - single, axis=1)
-            for a, b in zip(plan_.offsets[:-1], plan_.offsets[1:]):
-                if spread_v[a:b].any() and np.median(extra[a:b]) > SPREAD_CLEARANCE_DRIFT:
-                    pts[a:b] = single[a:b]
-                    spread_v[a:b] = False
-            if spread_v.any():
-                # only vertices the spread moved by more than their estimated
-                # clearance (less the margin) can have gone inside
-                shift = np.linalg.norm(pts - before, axis=1)
-                check = spread_v & (np.minimum(d_loc, est) < shift + margin)
-                pts, moved4 = push_out(query, pts, target, mask=check)
-                moved |= spread_v | moved4
-                if plan_.layers:
-                    refresh_footprints(pts)
-                    pts, moved5 = keep_layers(query, pts, plan_.offsets, plan_.layers, mask=spread_v,
-                                              footprints=footprints)
-                    moved |= moved5
-        if footprints is not None:
-            refresh_footprints(pts)  # for the untangle
+        target = clearance_targets(plan_, options.push_inherited, options.inherited_clearance)
+        (pts, moved), footprints = correct_penetrations(plan_, body_points, body_faces, query, ev.points,
+                                                        target, options)
     t2 = time.perf_counter()
     timings = {"evaluate_s": t1 - t0, "penetration_s": t2 - t1}
-    if penetration and untangle:
-        pts, touched, stats = untangle_items(plan_, body_points, pts, query, target, rigid_maps,
-                                             footprints=footprints)
+    if penetration and options.untangle:
+        pts, touched, stats = untangle_items(plan_, body_points, pts, query, target, ev.rigid_maps,
+                                             footprints=footprints.closest if footprints is not None else None)
         moved |= touched
         timings["untangle_s"] = time.perf_counter() - t2
         debug(f"untangle: {stats}")
-    return pts, free, moved, timings
+    return Applied(pts, ev.free, moved, timings)
 
 
 def dress(ref: Character, target: Character, k: int = 5, use_regions: bool = True,
@@ -211,7 +350,7 @@ def dress(ref: Character, target: Character, k: int = 5, use_regions: bool = Tru
           prepared: DressPlan | None = None) -> DressResult:
     """Put every item of ``ref`` on ``target``'s body (internal space).
     ``bind_labels``/``skirt_items``/``ref_clearance``: see :func:`plan`;
-    ``push_inherited``, ``untangle``: see :func:`apply`. ``prepared``: a plan
+    ``push_inherited``, ``untangle``: see :class:`PassOptions`. ``prepared``: a plan
     of ``ref`` made earlier (e.g. :meth:`DressPlan.rebound`), used instead of
     a new one (the plan options are then ignored)."""
     tb = time.perf_counter()
@@ -232,7 +371,7 @@ def dress(ref: Character, target: Character, k: int = 5, use_regions: bool = Tru
         if released:
             info(f"{target.source}: rigid parts that do not fit this body move freely: {', '.join(released)}")
     pts, free, moved, tm = apply(p, body_points, ref.body.faces, penetration=penetration, query=query,
-                                 push_inherited=push_inherited, untangle=untangle)
+                                 options=PassOptions(push_inherited=push_inherited, untangle=untangle))
     timings = {"body_fit_s": t_fit, **p.timings, **tm}
     keep_weights = (target.skeleton is not None and ref.skeleton is not None
                     and target.skeleton.joint_names == ref.skeleton.joint_names)
