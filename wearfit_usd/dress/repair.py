@@ -70,132 +70,193 @@ def release_misfits(plan_: DressPlan, body_points: np.ndarray, query: SurfaceQue
     return replace(plan_, rigid_groups=keep, rigid_items=[n for n in plan_.rigid_items if n in still]), names
 
 
-def untangle_items(plan_: DressPlan, body_points: np.ndarray, pts: np.ndarray, query: SurfaceQuery,
-                   target: np.ndarray, rigid_maps: list, bisect_steps: int = 5, relax: bool = True,
-                   footprints: dict | None = None, **kw):
-    """Run :func:`untangle.untangle` on redressed items (points (M, 3)):
-    vertex gradients from the binding (rigid parts: their similarity
-    ``s * rot`` from ``rigid_maps`` [(vertex indices, (3, 3))]), constraints
-    = :func:`push_out` to ``target`` (M,) clearance (m) and
-    :func:`keep_layers`, both restricted to the re-solved vertices. With
-    ``relax``, edges still outside the body's stretch range
-    (:func:`stretch_limits`) are then brought back into it
-    (:func:`untangle.relax_edges`, same constraints). footprints: the
-    closest body points of ``pts`` (:meth:`SurfaceQuery.closest` keys
-    distance, point, normal) if already known.
-    Returns (points (M, 3), touched (M,) bool, stats dict)."""
+def deformation_gradients(plan_: DressPlan, body_points: np.ndarray, rigid_maps: list) -> np.ndarray:
+    """(M, 3, 3) the deformation each item vertex should follow: the body's
+    triangle gradients from the plan's reference body to ``body_points``
+    (N, 3), blended with the binding weights; rigid parts' vertices take
+    their group's linear map ``s * rot`` from ``rigid_maps`` [(vertex indices,
+    (3, 3))]."""
     b = plan_.binding
     tg = np.tile(np.eye(3), (len(b.faces), 1, 1))
     tg[b.used] = U.triangle_gradients(plan_.ref_body, body_points, b.faces[b.used])
     grad = U.vertex_gradients(tg, b.triangles, b.weights)
     for gv, lin in rigid_maps:
         grad[gv] = lin
-    faces = plan_.item_faces
-    if faces is None:
-        faces = np.concatenate([m.faces + a for m, a in zip(plan_.items, plan_.offsets[:-1])]).astype(np.int64)
-    item_edges = plan_.item_edges if plan_.item_edges is not None else edges(faces)
-    tgt = np.nan_to_num(np.asarray(target, dtype=np.float64), nan=-1.0)
-    known, footprints_in = footprints is not None, footprints
-    if plan_.layers and not known:
-        res = query.closest(pts)
-        footprints = {k: res[k] for k in ("distance", "point", "normal")}
-    elif known:
-        footprints = {k: v.copy() for k, v in footprints.items()}  # constrain updates them
+    return grad
 
-    def constrain(p, mask, before):
-        # push_out and keep_layers with one closest-point query of the masked
-        # vertices. A vertex the solve took inside goes back along its own
-        # path to where it re-enters its clearance (bisection between its
-        # valid position before the solve and the new one), not to the
-        # closest skin point, which can lie on the far side of a thin gap
-        # (armpit, crotch) and fold the patch.
+
+class UntangleConstraints:
+    """The constraints of the untangle (``constrain`` of
+    :func:`untangle.untangle` and :func:`untangle.relax_edges`):
+    ``constraints(points (M, 3), mask (M,) bool, before (M, 3)) -> (points,
+    moved (M,) bool)`` applies, to the masked (re-solved) vertices only, the
+    push-out to their ``target`` (M,) clearance (m; NaN = none) and the layer
+    order of the plan, with one closest-point query of the masked vertices,
+    then lifts the patches these per-vertex moves folded as a whole
+    (:func:`untangle.lift_folds`).
+
+    A vertex the solve took inside goes back along its own path to where it
+    re-enters its clearance (bisection, ``bisect_steps`` halvings, between
+    its valid position ``before`` the solve and the new one), not to the
+    closest skin point, which can lie on the far side of a thin gap (armpit,
+    crotch) and fold the patch. ``footprints`` (the closest body points of
+    the items, :meth:`SurfaceQuery.closest` keys distance, point, normal) are
+    updated in place for the layer pass.
+    """
+
+    def __init__(self, plan_: DressPlan, query: SurfaceQuery, target: np.ndarray, faces: np.ndarray,
+                 grad: np.ndarray, footprints: dict | None, bisect_steps: int = 5):
+        self.plan = plan_
+        self.query = query
+        self.target = np.nan_to_num(np.asarray(target, dtype=np.float64), nan=-1.0)
+        self.faces = faces
+        self.grad = grad
+        self.footprints = footprints
+        self.bisect_steps = bisect_steps
+
+    def __call__(self, points: np.ndarray, mask: np.ndarray, before: np.ndarray):
         sel = np.flatnonzero(mask)
-        res = query.closest(p[sel], ring=False)
-        solved = p
-        p = p.copy()
+        res = self.query.closest(points[sel], ring=False)
+        p = points.copy()
         moved = np.zeros(len(p), dtype=bool)
-        inside = (res["distance"] < 0) & (tgt[sel] > 0)
+        inside = (res["distance"] < 0) & (self.target[sel] > 0)
         pushed = sel[inside]
         if len(pushed):
-            lo = np.zeros(len(pushed))  # fraction of the step known to be fine
-            hi = np.ones(len(pushed))
-            a, b = before[pushed], p[pushed]
-            for _ in range(bisect_steps):
-                mid = 0.5 * (lo + hi)
-                d = query.closest(a + mid[:, None] * (b - a), ring=False)["distance"]
-                ok = d >= np.minimum(tgt[pushed], 0.0005)
-                lo = np.where(ok, mid, lo)
-                hi = np.where(ok, hi, mid)
-            p[pushed] = a + lo[:, None] * (b - a)
-            # still inside (the start was inside too): closest skin point
-            r2 = query.closest(p[pushed])
-            bad = r2["distance"] < 0
-            p[pushed[bad]] = off_skin(r2, bad, tgt[pushed[bad]])
-            r2["distance"][bad] = tgt[pushed[bad]]
+            p[pushed], closest = self.back_to_clearance(before[pushed], p[pushed], self.target[pushed])
             for k in ("distance", "point", "normal"):
-                res[k][inside] = r2[k]
+                res[k][inside] = closest[k]
         moved[pushed] = True
-        if plan_.layers:
-            for k in footprints:
-                footprints[k][sel] = res[k]
-            p, moved2 = keep_layers(query, p, plan_.offsets, plan_.layers, mask=mask, footprints=footprints)
-            moved |= moved2
+        if self.plan.layers:
+            for k in self.footprints:
+                self.footprints[k][sel] = res[k]
+            p, lifted = keep_layers(self.query, p, self.plan.offsets, self.plan.layers, mask=mask,
+                                    footprints=self.footprints)
+            moved |= lifted
         if moved.any():
             # per-vertex pushes fold triangles whose corners got different
             # pushes (slivers, concave creases): move such patches as a whole
-            p, lifted = U.lift_folds(plan_.ref_points, solved, p, faces, grad, moved)
+            p, lifted = U.lift_folds(self.plan.ref_points, points, p, self.faces, self.grad, moved)
             moved |= lifted
         return p, moved
 
-    detect = U.BadElements(plan_.ref_points, faces, item_edges, grad)
-    new, touched, stats = U.untangle(plan_.ref_points, pts, faces, item_edges, plan_.neighbours, grad,
-                                     constrain, detect=detect, **kw)
-    if relax:
-        # the edges the untangle left outside the body's own stretch range
-        # (its gradient field cannot be met across a seam between two body
-        # parts, and its constraints move single vertices again)
-        # (only edges outside the skin's own range can be outside the full
-        # range, which contains it: the full range is found for those and
-        # for the relaxed region only)
-        fixed = plan_.rigid_mask()
-        vr = vertex_stretch(b.triangles, plan_.ref_body, body_points, b.faces)
-        cand = np.flatnonzero(U.outside_range(plan_.ref_points, new, item_edges,
-                                              *skin_range(item_edges, vr), fixed))
-        if len(cand):
-            new, relaxed, st = U.relax_edges(
-                plan_.ref_points, new, item_edges,
-                lambda idx: stretch_limits(plan_, body_points, item_edges[idx], vr),
-                plan_.neighbours, fixed, constrain, faces, lambda p: detect(p)[0], candidates=cand)
-            touched |= relaxed
-            stats.update(st)
-    # the untangle must not trade the fit for shape: an item whose median
-    # clearance error (|clearance - reference clearance| over all its
-    # vertices, the dressing metric) grows by more than
-    # UNTANGLE_CLEARANCE_DRIFT keeps its redress (a thin closed tube such as
-    # a necklace, freed as a whole, can otherwise slide around the neck)
-    # (one query over the touched items before, one over the touched
-    # vertices after: the others kept their clearance)
-    kept = []
+    def back_to_clearance(self, start: np.ndarray, end: np.ndarray, target: np.ndarray):
+        """Vertices that moved from ``start`` (P, 3) to ``end`` (P, 3) into
+        the body: the point of that path where they re-enter their clearance
+        ``target`` (P,) (or 0.5 mm if smaller); those still inside (the start
+        was inside too) at ``target`` off their closest skin point. Returns
+        (points (P, 3), their :meth:`SurfaceQuery.closest` result, distances
+        of the latter set to their target)."""
+        lo = np.zeros(len(start))  # fraction of the step known to be fine
+        hi = np.ones(len(start))
+        for _ in range(self.bisect_steps):
+            mid = 0.5 * (lo + hi)
+            d = self.query.closest(start + mid[:, None] * (end - start), ring=False)["distance"]
+            ok = d >= np.minimum(target, 0.0005)
+            lo = np.where(ok, mid, lo)
+            hi = np.where(ok, hi, mid)
+        out = start + lo[:, None] * (end - start)
+        closest = self.query.closest(out)
+        bad = closest["distance"] < 0
+        out[bad] = off_skin(closest, bad, target[bad])
+        closest["distance"][bad] = target[bad]
+        return out, closest
+
+
+def relax_stretch(plan_: DressPlan, body_points: np.ndarray, points: np.ndarray, item_edges: np.ndarray,
+                  faces: np.ndarray, constraints: UntangleConstraints, detect: U.BadElements):
+    """The edges the untangle left outside the body's own stretch range (its
+    gradient field cannot be met across a seam between two body parts, and
+    its constraints move single vertices again) brought back into it
+    (:func:`untangle.relax_edges`, under the same constraints). Only edges
+    outside the skin's own range can be outside the full range, which
+    contains it: the full range is found for those and for the relaxed
+    region only. Returns (points (M, 3), relaxed (M,) bool, stats dict)."""
+    b = plan_.binding
+    fixed = plan_.rigid_mask()
+    vr = vertex_stretch(b.triangles, plan_.ref_body, body_points, b.faces)
+    cand = np.flatnonzero(U.outside_range(plan_.ref_points, points, item_edges,
+                                          *skin_range(item_edges, vr), fixed))
+    if not len(cand):
+        return points, np.zeros(len(points), dtype=bool), {}
+    return U.relax_edges(plan_.ref_points, points, item_edges,
+                         lambda idx: stretch_limits(plan_, body_points, item_edges[idx], vr),
+                         plan_.neighbours, fixed, constraints, faces, lambda p: detect(p)[0], candidates=cand)
+
+
+def keep_fit(plan_: DressPlan, query: SurfaceQuery, before: np.ndarray, after: np.ndarray, touched: np.ndarray,
+             distance_before: np.ndarray | None = None):
+    """The untangle must not trade the fit for shape: an item whose median
+    clearance error (|clearance - reference clearance| over all its
+    vertices, the dressing metric) grows from ``before`` (M, 3) to ``after``
+    (M, 3) by more than ``UNTANGLE_CLEARANCE_DRIFT`` gets ``before`` back (a
+    thin closed tube such as a necklace, freed as a whole, can otherwise
+    slide around the neck). One query over the touched items before (unless
+    ``distance_before`` (M,) is known), one over the ``touched`` (M,) bool
+    vertices after: the others kept their clearance. ``after`` and
+    ``touched`` are updated in place. Returns the names of the reverted
+    items."""
     spans = [(item, a, b) for item, a, b in zip(plan_.items, plan_.offsets[:-1], plan_.offsets[1:])
              if touched[a:b].any()]
     rows = np.concatenate([np.arange(a, b) for _, a, b in spans]) if spans else np.zeros(0, dtype=np.int64)
-    d_before = np.zeros(len(pts))
-    if known:
-        d_before[rows] = footprints_in["distance"][rows]
+    d_before = np.zeros(len(before))
+    if distance_before is not None:
+        d_before[rows] = distance_before[rows]
     else:
-        d_before[rows] = query.closest(pts[rows])["distance"]
+        d_before[rows] = query.closest(before[rows])["distance"]
     d_after = d_before.copy()
     tv = np.flatnonzero(touched)
-    d_after[tv] = query.closest(new[tv])["distance"]
+    d_after[tv] = query.closest(after[tv])["distance"]
+    reverted = []
     for item, a, b in spans:
         ref_c = plan_.ref_clearance[a:b]
         err_before = np.median(np.abs(d_before[a:b] - ref_c))
         err_after = np.median(np.abs(d_after[a:b] - ref_c))
         if err_after > err_before + UNTANGLE_CLEARANCE_DRIFT:
-            new[a:b] = pts[a:b]
+            after[a:b] = before[a:b]
             touched[a:b] = False
-            kept.append(item.name)
-    stats["reverted_items"] = kept
+            reverted.append(item.name)
+    return reverted
+
+
+def untangle_items(plan_: DressPlan, body_points: np.ndarray, pts: np.ndarray, query: SurfaceQuery,
+                   target: np.ndarray, rigid_maps: list, bisect_steps: int = 5, relax: bool = True,
+                   footprints: dict | None = None, **kw):
+    """Run :func:`untangle.untangle` on redressed items (points (M, 3)):
+    vertex gradients from the binding (:func:`deformation_gradients`, rigid
+    parts: their similarity ``s * rot`` from ``rigid_maps`` [(vertex indices,
+    (3, 3))]), constraints = :func:`corrections.push_out` to ``target`` (M,)
+    clearance (m) and :func:`layers.keep_layers`, both restricted to the
+    re-solved vertices (:class:`UntangleConstraints`). With ``relax``, edges
+    still outside the body's stretch range (:func:`stretch_limits`) are then
+    brought back into it (:func:`relax_stretch`). Items whose fit the
+    untangle worsened keep their input (:func:`keep_fit`). footprints: the
+    closest body points of ``pts`` (:meth:`SurfaceQuery.closest` keys
+    distance, point, normal) if already known; ``kw``: options of
+    :func:`untangle.untangle`.
+    Returns (points (M, 3), touched (M,) bool, stats dict)."""
+    grad = deformation_gradients(plan_, body_points, rigid_maps)
+    faces = plan_.item_faces
+    if faces is None:
+        faces = np.concatenate([m.faces + a for m, a in zip(plan_.items, plan_.offsets[:-1])]).astype(np.int64)
+    item_edges = plan_.item_edges if plan_.item_edges is not None else edges(faces)
+    known = footprints is not None
+    if plan_.layers and not known:
+        res = query.closest(pts)
+        work_footprints = {k: res[k] for k in ("distance", "point", "normal")}
+    elif known:
+        work_footprints = {k: v.copy() for k, v in footprints.items()}  # the constraints update them
+    else:
+        work_footprints = None
+    constraints = UntangleConstraints(plan_, query, target, faces, grad, work_footprints, bisect_steps)
+    detect = U.BadElements(plan_.ref_points, faces, item_edges, grad)
+    new, touched, stats = U.untangle(plan_.ref_points, pts, faces, item_edges, plan_.neighbours, grad,
+                                     constraints, detect=detect, **kw)
+    if relax:
+        new, relaxed, st = relax_stretch(plan_, body_points, new, item_edges, faces, constraints, detect)
+        touched |= relaxed
+        stats.update(st)
+    stats["reverted_items"] = keep_fit(plan_, query, pts, new, touched,
+                                       footprints["distance"] if known else None)
     return new, touched, stats
 
 
