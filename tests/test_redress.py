@@ -128,9 +128,9 @@ def test_skirt_does_not_tear_between_the_legs(ref_male):
     target.body = ref_male.body.copy_with_points(posed)
     with_regions = dress(ref, target, rigid="none", penetration=False)
     without = dress(ref, target, rigid="none", penetration=False, use_regions=False)
-    assert with_regions.plan.skirt_items == ["skirt"]
+    assert with_regions.plan.regions.skirt_items == ["skirt"]
     # no vertex is bound to triangles of both legs
-    lab = with_regions.plan.tri_labels[with_regions.plan.binding.triangles]
+    lab = with_regions.plan.regions.triangle[with_regions.plan.binding.triangles]
     both = np.any(lab == 1, axis=1) & np.any(lab == 2, axis=1)
     assert not both.any()
     r_with = _max_edge_ratio(pts, with_regions.points, faces)
@@ -141,7 +141,7 @@ def test_skirt_does_not_tear_between_the_legs(ref_male):
 
 def test_trousers_are_not_taken_for_a_skirt(ref_male):
     p = plan(ref_male)
-    assert p.skirt_items == []
+    assert p.regions.skirt_items == []
 
 
 def test_push_out_moves_inside_points_to_their_clearance():

@@ -40,7 +40,7 @@ class FrameEvaluator:
         self._used_faces = b._used_faces
         self._buf = np.zeros((self._matrix.shape[1], 3))
         sm = plan.smoother
-        self._smooth = sm is not None and sm.active
+        self._smooth = sm.active
         if self._smooth:
             ref = np.asarray(plan.ref_points, dtype=np.float64)
             self._ref_free = np.ascontiguousarray(ref[sm.free])

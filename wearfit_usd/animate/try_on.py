@@ -159,8 +159,7 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
             frame_plan = dressed.plan.rebound(base_body, all_base)
         else:
             base = replace(target, body=body.copy_with_points(base_body), skeleton=base_skeleton, items=items)
-            frame_plan = plan_dress(base, k=opt.k, bind_labels=ref_plan.bind_labels,
-                                    skirt_items=ref_plan.skirt_items)
+            frame_plan = plan_dress(base, k=opt.k, regions=ref_plan.regions)
         frame_eval = FrameEvaluator(frame_plan)
         evaluator = lambda f, body_f: frame_eval(body_f)  # noqa: E731
         items_for_skin = []

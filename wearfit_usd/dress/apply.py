@@ -139,8 +139,7 @@ def evaluate(plan_: DressPlan, body_points: np.ndarray) -> Evaluation:
         s, rot, t = parts.transforms(body_points)
         parts.place(s, rot, t, pts)
         rigid_maps = [(gv, s[i] * rot[i]) for i, gv in enumerate(parts.groups)]
-    if plan_.smoother is not None:
-        pts = plan_.smoother(pts, plan_.ref_points)
+    pts = plan_.smoother(pts, plan_.ref_points)
     return Evaluation(free, pts, rigid_maps)
 
 
@@ -161,7 +160,7 @@ def clearance_targets(plan_: DressPlan, push_inherited: bool, inherited_clearanc
     """
     inherited = push_inherited & (plan_.ref_clearance < -inherited_clearance)
     # (the plan's rigid parts, also when released on this body)
-    inherited &= ~(plan_.insets_kept if plan_.insets_kept is not None else plan_.rigid_mask())
+    inherited &= ~plan_.insets_kept
     return np.where(plan_.ref_clearance > 0, plan_.ref_clearance,
                     np.where(inherited, inherited_clearance, np.nan))
 
@@ -178,7 +177,7 @@ def penetration_candidates(plan_: DressPlan, body_points: np.ndarray, body_faces
     d_loc, _ = local_signed_distance(plan_.binding, body_points, points)
     cand = d_loc < margin
     dn, vn = cKDTree(body_points).query(points, k=1)
-    cand |= (plan_.body_labels[vn] != plan_.labels) & (dn < near_other)
+    cand |= (plan_.regions.body[vn] != plan_.regions.vertex) & (dn < near_other)
     normals = VertexNormals(body_faces, len(body_points))(body_points)
     est = np.einsum("ij,ij->i", points - body_points[vn], normals[vn])
     cand |= est < margin
@@ -189,10 +188,11 @@ def ring_neighbours(plan_: DressPlan, spread: bool) -> sp.csr_matrix:
     """The adjacency :func:`corrections.push_out` smooths the 1-ring of pushed
     vertices over: the item mesh's; with ``spread`` only the rigid parts'
     (the others' corrections are spread by :func:`spread_pass` instead)."""
+    neighbours = plan_.mesh.neighbours
     if not spread:
-        return plan_.neighbours
+        return neighbours
     rig = plan_.rigid_mask()
-    return (sp.diags(rig.astype(np.float64)) @ plan_.neighbours @ sp.diags(rig.astype(np.float64))
+    return (sp.diags(rig.astype(np.float64)) @ neighbours @ sp.diags(rig.astype(np.float64))
             + sp.diags((~rig).astype(np.float64))).tocsr()
 
 
@@ -204,7 +204,7 @@ def push_out_pass(plan_: DressPlan, query: SurfaceQuery, points: np.ndarray, tar
     neighbourhood (a smooth bulge, not a spike) and push out what went back
     inside."""
     pts, moved = push_out(query, points, target, mask=candidates, neighbours=ring)
-    if plan_.smoother is not None and np.any(moved & (plan_.looseness > 0)):
+    if np.any(moved & (plan_.looseness > 0)):
         pts = plan_.smoother(pts, plan_.ref_points)
         again = candidates | moved
         pts, moved_again = push_out(query, pts, target, mask=again, neighbours=ring)
@@ -223,7 +223,7 @@ def spread_pass(plan_: DressPlan, before: np.ndarray, single: np.ndarray, moved:
     bounds the clearance change). Returns the points and the vertices the
     spread moved."""
     req = moved | (np.abs(single - before).max(axis=1) > 1e-6)
-    pts, spread_v = spread_corrections(plan_.ref_points, before, single, req, plan_.neighbours,
+    pts, spread_v = spread_corrections(plan_.ref_points, before, single, req, plan_.mesh.neighbours,
                                        fixed=plan_.rigid_mask())
     extra = np.linalg.norm(pts - single, axis=1)
     for a, b in zip(plan_.offsets[:-1], plan_.offsets[1:]):
@@ -344,15 +344,15 @@ def apply(plan_: DressPlan, body_points: np.ndarray, body_faces: np.ndarray, pen
 
 def dress(ref: Character, target: Character, k: int = 5, use_regions: bool = True,
           rigid="auto", penetration: bool = True, body_points: np.ndarray | None = None,
-          strict_far: bool = False, bind_labels: np.ndarray | None = None,
-          skirt_items: list[str] | None = None, ref_clearance: np.ndarray | None = None,
-          push_inherited: bool = False, untangle: bool = True,
+          strict_far: bool = False, push_inherited: bool = False, untangle: bool = True,
           prepared: DressPlan | None = None) -> DressResult:
     """Put every item of ``ref`` on ``target``'s body (internal space).
-    ``bind_labels``/``skirt_items``/``ref_clearance``: see :func:`plan`;
+    ``k``, ``use_regions``, ``rigid``, ``strict_far``: see :func:`plan.plan`;
     ``push_inherited``, ``untangle``: see :class:`PassOptions`. ``prepared``: a plan
-    of ``ref`` made earlier (e.g. :meth:`DressPlan.rebound`), used instead of
-    a new one (the plan options are then ignored)."""
+    of ``ref`` made earlier (e.g. :meth:`DressPlan.rebound`, or :func:`plan.plan`
+    with its other options), used instead of a new one (the plan options are
+    then ignored). ``body_points``: the reference body fitted onto the target
+    (N_ref, 3) if already known (default :func:`fitted_body_points`)."""
     tb = time.perf_counter()
     if body_points is None:
         body_points = fitted_body_points(ref, target)
@@ -360,12 +360,9 @@ def dress(ref: Character, target: Character, k: int = 5, use_regions: bool = Tru
     if prepared is not None:
         p = prepared
     else:
-        p = plan(ref, k=k, use_regions=use_regions, rigid=rigid, strict_far=strict_far,
-                 bind_labels=bind_labels, skirt_items=skirt_items, ref_clearance=ref_clearance)
-    query = None
-    if penetration:  # the plan's reference-body query has this topology
-        query = (p.body_query.moved_to(body_points) if p.body_query is not None
-                 else SurfaceQuery(ref.body.faces, body_points))
+        p = plan(ref, k=k, use_regions=use_regions, rigid=rigid, strict_far=strict_far)
+    # the plan's reference-body query has this topology
+    query = p.body_query.moved_to(body_points) if penetration else None
     if penetration and p.rigid_groups:
         p, released = release_misfits(p, body_points, query)
         if released:

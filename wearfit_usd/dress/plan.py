@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field, replace
+from typing import NamedTuple
 
 import numpy as np
 import scipy.sparse as sp
@@ -32,14 +33,15 @@ from .layers import layer_gaps, layer_order
 from .rigid_parts import RigidParts
 from ..errors import GeometryError, InputError
 from ..geometry.closest import SurfaceQuery
-from ..geometry.mesh import adjacency, components, edges
+from ..geometry.mesh import adjacency, components, edges, nondegenerate
 from ..model import Character, Mesh
 from ..progress import warn
 
 FAR_FROM_BODY = 0.5  # m: items farther than this from the body are suspicious
+DEGENERATE_BODY_REL = 1e-10  # body triangles below this x the median doubled area are not bound to
 
 
-def _group_mask(groups: list, m: int) -> np.ndarray:
+def group_mask(groups: list, m: int) -> np.ndarray:
     """(m,) bool: the vertices of rigid groups [(vertex indices, ...)]."""
     mask = np.zeros(m, dtype=bool)
     for gv, *_ in groups:
@@ -47,45 +49,88 @@ def _group_mask(groups: list, m: int) -> np.ndarray:
     return mask
 
 
+@dataclass(frozen=True)
+class ItemRegions:
+    """Body regions (:mod:`regions`) of a plan: per item vertex, body
+    triangle and body vertex, and the items treated as skirts."""
+    vertex: np.ndarray      # (M,) region each item vertex is bound to (skirt parts: TORSO)
+    bind: np.ndarray        # (M,) the regions used for binding (skirt parts: HIPS); pass to plan(regions=...)
+    triangle: np.ndarray    # (T,) region of each body triangle
+    body: np.ndarray        # (N,) region of each body vertex
+    skirt_items: list       # names of the items bound as skirts (from the hips)
+
+
+@dataclass(frozen=True)
+class StackedMesh:
+    """The items' meshes stacked into one (vertex indices into the stacked points)."""
+    faces: np.ndarray            # (F, 3) triangles of all items
+    edges: np.ndarray            # (E, 2) their unique edges
+    neighbours: sp.csr_matrix    # (M, M) vertex adjacency (block diagonal, one block per item)
+
+
+class Footprint(NamedTuple):
+    """The closest reference skin point of each item vertex."""
+    triangle: np.ndarray    # (M,) body triangle
+    bary: np.ndarray        # (M, 3) barycentrics in it
+
+
+@dataclass(frozen=True)
+class AutoRigid:
+    """Which item parts :func:`plan` moves rigidly with ``rigid="auto"``:
+    small (bounding-box diagonal <= max_size m), not skin-tight (median
+    clearance >= min_clearance m) parts of at most max_vertices vertices
+    lying in one body region."""
+    max_size: float = 0.4
+    min_clearance: float = 0.004
+    max_vertices: int = 4000
+
+
 @dataclass
 class DressPlan:
     """Everything topology-dependent, built once on the reference body.
 
-    binding: one :class:`Binding` for all item vertices (stacked in item order).
-    offsets: (n_items + 1,) start of each item's rows.
-    ref_clearance: (M,) signed clearance on the reference body.
-    labels: (M,) body region each vertex is bound to.
+    items: the reference items, their vertices stacked in item order (M in all);
+    binding: one :class:`Binding` for all item vertices;
+    offsets: (n_items + 1,) start of each item's rows;
+    ref_points: (M, 3) the stacked item points on the reference;
+    ref_body: (N, 3) the reference body points;
+    ref_clearance: (M,) signed clearance on the reference body (m), kept on targets;
+    ref_foot: the closest reference skin point of each item vertex;
+    body_query: a :class:`SurfaceQuery` on the reference body (its topology serves every target);
+    regions: body regions of the item vertices, body triangles and vertices;
+    mesh: the items' stacked triangles, edges and adjacency;
     rigid_groups: list of (vertex indices (P,), body vertex indices (Q,),
-        body vertex weights (Q,)) moved by one similarity transform.
-    neighbours: (M, M) item adjacency (all items, block diagonal).
+        body vertex weights (Q,)) moved by one similarity transform;
+    rigid_items: names of the items with rigid groups;
+    insets_kept: (M,) bool, vertices that keep authored insets (the plan's
+        rigid groups, also when :func:`repair.release_misfits` frees them);
     looseness: (M,) 0..1, how much each vertex's displacement is smoothed
-        over the item mesh (see :class:`LooseSmoother`): 0 for tight parts
-        (clearance kept exactly), 1 for parts hanging far from the body.
+        over the item mesh: 0 for tight parts (clearance kept exactly), 1 for
+        parts hanging far from the body;
+    smoother: the :class:`LooseSmoother` of that weight;
+    layers: [(outer item, inner item, separation (n_outer,) m, inner vertex
+        (n_outer,))] (:func:`layers.layer_gaps`);
+    timings: seconds per planning step;
+    rigid_parts: the rigid groups' per-body evaluator (None without groups).
     """
     items: list[Mesh]
     binding: Binding
     offsets: np.ndarray
     ref_points: np.ndarray
+    ref_body: np.ndarray
     ref_clearance: np.ndarray
-    labels: np.ndarray
-    tri_labels: np.ndarray
-    body_labels: np.ndarray
-    ref_body: np.ndarray | None = None
-    rigid_groups: list = field(default_factory=list)
-    rigid_parts: RigidParts | None = field(init=False, default=None)  # rigid_groups' per-frame evaluator
-    rigid_items: list = field(default_factory=list)
-    skirt_items: list = field(default_factory=list)
-    neighbours: sp.csr_matrix | None = None
-    looseness: np.ndarray | None = None
-    smoother: "LooseSmoother | None" = None
-    bind_labels: np.ndarray | None = None   # (M,) regions used for binding (skirt parts: HIPS)
-    layers: list | None = None  # [(outer item, inner item, separation (n_outer,) m, inner vertex (n_outer,))]: :func:`layer_gaps`
-    item_faces: np.ndarray | None = None  # (F, 3) triangles of all items, stacked vertex indices
-    item_edges: np.ndarray | None = None  # (E, 2) their unique edges
-    ref_foot: tuple | None = None  # (triangle (M,), barycentrics (M, 3)): closest reference skin point
-    body_query: SurfaceQuery | None = field(default=None, repr=False, compare=False)  # on ref_body
-    insets_kept: np.ndarray | None = None  # (M,) bool: keep authored insets (the plan's rigid parts)
+    ref_foot: Footprint
+    body_query: SurfaceQuery = field(repr=False, compare=False)
+    regions: ItemRegions
+    mesh: StackedMesh
+    rigid_groups: list
+    rigid_items: list
+    insets_kept: np.ndarray
+    looseness: np.ndarray
+    smoother: LooseSmoother
+    layers: list
     timings: dict = field(default_factory=dict)
+    rigid_parts: RigidParts | None = field(init=False, default=None)
 
     def __post_init__(self):
         if self.rigid_groups:
@@ -93,12 +138,13 @@ class DressPlan:
 
     def rigid_mask(self) -> np.ndarray:
         """(M,) bool: item vertices of the rigid groups."""
-        return _group_mask(self.rigid_groups, len(self.ref_points))
+        return group_mask(self.rigid_groups, len(self.ref_points))
 
-    def item_slices(self):
+    def item_slices(self) -> list[slice]:
+        """The rows of each item in the stacked arrays."""
         return [slice(int(a), int(b)) for a, b in zip(self.offsets[:-1], self.offsets[1:])]
 
-    def rebound(self, body_points: np.ndarray, item_points: np.ndarray) -> "DressPlan":
+    def rebound(self, body_points: np.ndarray, item_points: np.ndarray) -> DressPlan:
         """This plan with the items bound where they are now, item_points
         (M, 3), on body_points (N, 3) of the same body topology: the same
         triangles and weights (:func:`binding.rebind`), regions, clearances
@@ -168,46 +214,38 @@ def _auto_rigid(item: Mesh, ref_clear: np.ndarray, lab: np.ndarray, comp: np.nda
     return groups
 
 
-def plan(ref: Character, k: int = 5, use_regions: bool = True, rigid="auto",
-         rigid_max_size: float = 0.4, rigid_min_clearance: float = 0.004,
-         rigid_max_vertices: int = 4000, far: float = FAR_FROM_BODY,
-         strict_far: bool = False, bind_labels: np.ndarray | None = None,
-         skirt_items: list[str] | None = None,
-         ref_clearance: np.ndarray | None = None) -> DressPlan:
-    """Bind every item of ``ref`` to its body (done once per reference).
-
-    bind_labels / skirt_items: the region of each item vertex (and the skirt
-        items) from an earlier plan, e.g. of the reference in its rest pose.
-        Regions are best told apart with the limbs away from the body: a posed
-        body (hands hanging beside a skirt) would hand skirt vertices to the
-        arms. Default: found on this body.
-    ref_clearance: (M,) clearance each item vertex keeps (signed distance to
-        the body it was authored on); default: measured on ``ref``. A posed
-        reference passes its rest-pose clearance: posing moves rigid parts
-        (a shoe over bending toes) through the skin, which is no reason to
-        leave them there.
-
-    rigid: "auto" (small stiff parts, see :func:`_auto_rigid`), "none", or a
-        list of item names moved rigidly as a whole (per body region).
-    """
-    t0 = time.perf_counter()
+def stack_items(ref: Character):
+    """The items of ``ref`` stacked: (items, offsets (n_items + 1,), points (M, 3))."""
     items = list(ref.items)
     if not items:
         raise InputError(ref.source, "the reference holds no wearable items (no Mesh besides the body)")
-    body = ref.body
     offsets = np.concatenate([[0], np.cumsum([m.n_points for m in items])])
-    pts = np.concatenate([m.points for m in items])
-    tri = body.points[body.faces]
-    area2 = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
-    degenerate = area2 <= 1e-10 * max(float(np.median(area2)), 1e-300)
+    return items, offsets, np.concatenate([m.points for m in items])
+
+
+def degenerate_triangles(ref: Character) -> np.ndarray:
+    """(T,) bool: the zero-area body triangles of ``ref`` (doubled area at
+    most ``DEGENERATE_BODY_REL`` x the median, :func:`geometry.mesh.nondegenerate`),
+    which binding leaves out; an error if every triangle is."""
+    degenerate = ~nondegenerate(ref.body.points, ref.body.faces, rel=DEGENERATE_BODY_REL)
     if degenerate.all():
         raise GeometryError(ref.source, "every body triangle is degenerate (zero area)")
     if degenerate.any():
         warn(f"{ref.source}: {int(degenerate.sum())} degenerate body triangles are not used for binding")
-    centroids = tri.mean(axis=1)
-    good = np.flatnonzero(~degenerate)
-    tree = cKDTree(centroids[good])
+    return degenerate
 
+
+class BodyRegions(NamedTuple):
+    """Regions of the reference body from its skin weights."""
+    vertex: np.ndarray      # (N,) region of each body vertex (all TORSO without regions)
+    triangle: np.ndarray    # (T,) region of each body triangle
+    leg_share: np.ndarray   # (N,) skin weight of the two legs
+
+
+def body_regions(ref: Character, use_regions: bool) -> BodyRegions:
+    """The reference body segmented by skin weights (:mod:`regions`), or
+    one region if ``use_regions`` is off or the body has no skin weights."""
+    body = ref.body
     if use_regions and ref.skeleton is not None and body.joint_indices is not None:
         shares = R.region_shares(body, ref.skeleton)
         body_labels = np.argmax(shares, axis=1)
@@ -215,39 +253,44 @@ def plan(ref: Character, k: int = 5, use_regions: bool = True, rigid="auto",
     else:
         body_labels = np.zeros(body.n_points, dtype=np.int64)
         leg_share = np.zeros(body.n_points)
-    tri_labels = R.triangle_regions(body.faces, body_labels)
-    if bind_labels is None:
-        labels, skirts = item_labels(body, body_labels, tri_labels[good], items, pts, offsets, tree)
-    else:
-        if len(bind_labels) != len(pts):
-            raise ValueError(f"bind_labels has {len(bind_labels)} entries for {len(pts)} item vertices")
-        labels, skirts = np.asarray(bind_labels).copy(), list(skirt_items or [])
-    t1 = time.perf_counter()
-    # skirt parts hang from the hips: they may only use torso triangles that
-    # the legs do not move (no leg skin weight), so spreading the legs
-    # neither tears nor swings them; the push-out pass then keeps the legs inside
-    hips = (tri_labels == R.TORSO) & (leg_share[body.faces].max(axis=1) < 0.02)
+    return BodyRegions(body_labels, R.triangle_regions(body.faces, body_labels), leg_share)
+
+
+def bind_items(body: Mesh, points: np.ndarray, labels: np.ndarray, regions: BodyRegions,
+               degenerate: np.ndarray, k: int) -> Binding:
+    """Bind item points (M, 3) with their regions ``labels`` (M,) (skirt
+    parts: HIPS) to the ``k`` nearest non-degenerate body triangles of their
+    region. Skirt parts hang from the hips: they may only use torso
+    triangles that the legs do not move (no leg skin weight), so spreading
+    the legs neither tears nor swings them; the push-out pass then keeps the
+    legs inside. Torso vertices may still use hip triangles."""
+    tri_labels = regions.triangle
+    hips = (tri_labels == R.TORSO) & (regions.leg_share[body.faces].max(axis=1) < 0.02)
     mask_labels = np.where(hips & np.isin(R.HIPS, labels), R.HIPS, tri_labels)
     mask_labels = np.where(degenerate, -1, mask_labels)
-    allowed = np.zeros((len(pts), R.N_REGIONS + 1), dtype=bool)
-    allowed[np.arange(len(pts)), np.where(labels == R.HIPS, R.HIPS, labels)] = True
-    allowed[:, R.HIPS] |= labels == R.TORSO  # torso vertices may still use hip triangles
-    binding = bind(body.points, body.faces, pts, k=k, candidate_mask=(mask_labels, allowed))
-    region_labels = labels.copy()  # with the HIPS marker of skirt parts
-    labels = np.where(labels == R.HIPS, R.TORSO, labels)
-    t2 = time.perf_counter()
-    # clearance to keep = true signed distance to the reference body (the
-    # offset along a bound triangle's plane extrapolates: on a bent foot a
-    # rigid shoe's plane offsets reach tens of centimetres)
-    ref_query = SurfaceQuery(body.faces, body.points)
-    foot = ref_query.closest(pts)
-    if ref_clearance is None:
-        ref_clear = foot["distance"]
+    allowed = np.zeros((len(points), R.N_REGIONS + 1), dtype=bool)
+    allowed[np.arange(len(points)), np.where(labels == R.HIPS, R.HIPS, labels)] = True
+    allowed[:, R.HIPS] |= labels == R.TORSO
+    return bind(body.points, body.faces, points, k=k, candidate_mask=(mask_labels, allowed))
+
+
+def reference_clearance(ref: Character, query: SurfaceQuery, items: list[Mesh], offsets: np.ndarray,
+                        points: np.ndarray, given: np.ndarray | None, far: float, strict_far: bool):
+    """The clearance each item vertex keeps: the true signed distance of the
+    item points (M, 3) to the reference body (the offset along a bound
+    triangle's plane extrapolates: on a bent foot a rigid shoe's plane
+    offsets reach tens of centimetres), or ``given`` (M,). Items farther than
+    ``far`` (m) from the body are warned about (an error with
+    ``strict_far``). Returns (clearance (M,), closest reference skin points
+    (:meth:`SurfaceQuery.closest` of ``points``))."""
+    foot = query.closest(points)
+    if given is None:
+        clearance = foot["distance"]
     else:
-        if len(ref_clearance) != len(pts):
-            raise ValueError(f"ref_clearance has {len(ref_clearance)} entries for {len(pts)} item vertices")
-        ref_clear = np.asarray(ref_clearance, dtype=np.float64)
-    far_mask = ref_clear > far
+        if len(given) != len(points):
+            raise ValueError(f"ref_clearance has {len(given)} entries for {len(points)} item vertices")
+        clearance = np.asarray(given, dtype=np.float64)
+    far_mask = clearance > far
     if far_mask.any():
         names = [m.name for m, a, b in zip(items, offsets[:-1], offsets[1:]) if far_mask[a:b].any()]
         msg = (f"{int(far_mask.sum())} item vertices are more than {far} m from the body "
@@ -255,55 +298,119 @@ def plan(ref: Character, k: int = 5, use_regions: bool = True, rigid="auto",
         if strict_far:
             raise GeometryError(ref.source, msg)
         warn(f"{ref.source}: {msg}")
+    return clearance, foot
 
-    rigid_groups, rigid_items = [], []
-    blocks = []
-    for i, (item, a, b) in enumerate(zip(items, offsets[:-1], offsets[1:])):
-        blocks.append(adjacency(item.faces, item.n_points))
-        if rigid == "none" or rigid is None:
-            continue
-        comp = connected_components(blocks[-1], directed=False)[1]
+
+def stacked_mesh(items: list[Mesh], offsets: np.ndarray) -> StackedMesh:
+    """The items' triangles, edges and adjacency in stacked vertex indices."""
+    faces = np.concatenate([m.faces + a for m, a in zip(items, offsets[:-1])]).astype(np.int64)
+    neighbours = sp.block_diag([adjacency(m.faces, m.n_points) for m in items], format="csr")
+    return StackedMesh(faces=faces, edges=edges(faces), neighbours=neighbours)
+
+
+def find_rigid_groups(items: list[Mesh], offsets: np.ndarray, labels: np.ndarray, clearance: np.ndarray,
+                      binding: Binding, body: Mesh, rigid, auto: AutoRigid):
+    """The item parts moved as a whole: with ``rigid="auto"`` the small stiff
+    parts of :class:`AutoRigid`, with a list of item names those items per
+    body region, none with "none"/None. Each group comes with its bound body
+    patch: the body vertices of the triangles its vertices use, weighted by
+    how much they are used. Returns (groups [(stacked vertex indices (P,),
+    body vertices (Q,), their weights (Q,))], names of the items with
+    groups)."""
+    groups, names = [], []
+    if rigid == "none" or rigid is None:
+        return groups, names
+    for item, a, b in zip(items, offsets[:-1], offsets[1:]):
         lab = labels[a:b]
         if rigid == "auto":
-            groups = _auto_rigid(item, ref_clear[a:b], lab, comp, rigid_max_size,
-                                 rigid_min_clearance, rigid_max_vertices)
+            comp = connected_components(adjacency(item.faces, item.n_points), directed=False)[1]
+            local = _auto_rigid(item, clearance[a:b], lab, comp, auto.max_size, auto.min_clearance,
+                                auto.max_vertices)
         elif item.name in rigid:
-            groups = [np.flatnonzero(lab == r) for r in np.unique(lab)]
+            local = [np.flatnonzero(lab == r) for r in np.unique(lab)]
         else:
-            groups = []
-        for v in groups:
+            local = []
+        for v in local:
             gv = v + a
-            # the bound patch: body vertices of the triangles these vertices use,
-            # weighted by how much they are used
             tri_w = binding.weights[gv]
             corner = body.faces[binding.triangles[gv]]  # (P, k, 3)
-            bw = np.bincount(corner.ravel(), weights=np.repeat(tri_w.ravel(), 3),
-                             minlength=body.n_points)
+            bw = np.bincount(corner.ravel(), weights=np.repeat(tri_w.ravel(), 3), minlength=body.n_points)
             bv = np.flatnonzero(bw > 0)
-            rigid_groups.append((gv, bv, bw[bv]))
-        if groups:
-            rigid_items.append(item.name)
-    neighbours = sp.block_diag(blocks, format="csr")
-    item_faces = np.concatenate([m.faces + a for m, a in zip(items, offsets[:-1])]).astype(np.int64)
-    skirt_mask = np.zeros(len(pts), dtype=bool)
+            groups.append((gv, bv, bw[bv]))
+        if local:
+            names.append(item.name)
+    return groups, names
+
+
+def loose_weights(items: list[Mesh], offsets: np.ndarray, skirts: list, clearance: np.ndarray,
+                  groups: list) -> np.ndarray:
+    """(M,) how much each vertex's displacement is smoothed
+    (:func:`corrections.looseness`): skirt items entirely, rigid parts not at
+    all (they move as a whole already)."""
+    skirt_mask = np.zeros(len(clearance), dtype=bool)
     for item, a, b in zip(items, offsets[:-1], offsets[1:]):
         if item.name in skirts:
             skirt_mask[a:b] = True
-    loose = looseness(ref_clear, skirt_mask)
-    for gv, _, _ in rigid_groups:
-        loose[gv] = 0.0  # rigid parts move as a whole already
+    loose = looseness(clearance, skirt_mask)
+    for gv, _, _ in groups:
+        loose[gv] = 0.0
+    return loose
+
+
+def plan(ref: Character, k: int = 5, use_regions: bool = True, rigid="auto", auto_rigid: AutoRigid | None = None,
+         far: float = FAR_FROM_BODY, strict_far: bool = False, regions: ItemRegions | None = None,
+         ref_clearance: np.ndarray | None = None) -> DressPlan:
+    """Bind every item of ``ref`` to its body (done once per reference).
+
+    rigid: "auto" (small stiff parts, see :class:`AutoRigid`, thresholds
+        ``auto_rigid``), "none", or a list of item names moved rigidly as a
+        whole (per body region).
+    far: m, item vertices farther than this from the body are warned about,
+        an error with ``strict_far``.
+    regions: the item regions of an earlier plan of these items
+        (``DressPlan.regions``), e.g. of the reference in its rest pose:
+        their binding regions and skirt items are used. Regions are best told
+        apart with the limbs away from the body: a posed body (hands hanging
+        beside a skirt) would hand skirt vertices to the arms. Default: found
+        on this body.
+    ref_clearance: (M,) clearance each item vertex keeps (signed distance to
+        the body it was authored on); default: measured on ``ref``. A posed
+        reference passes its rest-pose clearance: posing moves rigid parts
+        (a shoe over bending toes) through the skin, which is no reason to
+        leave them there.
+    """
+    t0 = time.perf_counter()
+    items, offsets, pts = stack_items(ref)
+    body = ref.body
+    degenerate = degenerate_triangles(ref)
+    body_reg = body_regions(ref, use_regions)
+    if regions is None:
+        good = np.flatnonzero(~degenerate)
+        tree = cKDTree(body.points[body.faces].mean(axis=1)[good])
+        labels, skirts = item_labels(body, body_reg.vertex, body_reg.triangle[good], items, pts, offsets, tree)
+    else:
+        if len(regions.bind) != len(pts):
+            raise ValueError(f"the given regions have {len(regions.bind)} entries for {len(pts)} item vertices")
+        labels, skirts = np.asarray(regions.bind).copy(), list(regions.skirt_items)
+    t1 = time.perf_counter()
+    binding = bind_items(body, pts, labels, body_reg, degenerate, k)
+    t2 = time.perf_counter()
+    ref_query = SurfaceQuery(body.faces, body.points)
+    ref_clear, foot = reference_clearance(ref, ref_query, items, offsets, pts, ref_clearance, far, strict_far)
+    item_regions = ItemRegions(vertex=np.where(labels == R.HIPS, R.TORSO, labels), bind=labels,
+                               triangle=body_reg.triangle, body=body_reg.vertex, skirt_items=skirts)
+    mesh = stacked_mesh(items, offsets)
+    rigid_groups, rigid_items = find_rigid_groups(items, offsets, item_regions.vertex, ref_clear, binding, body,
+                                                  rigid, auto_rigid or AutoRigid())
+    loose = loose_weights(items, offsets, skirts, ref_clear, rigid_groups)
     t3 = time.perf_counter()
-    return DressPlan(items=items, binding=binding, offsets=offsets, ref_points=pts,
-                     ref_clearance=ref_clear, labels=labels, tri_labels=tri_labels,
-                     body_labels=body_labels, rigid_groups=rigid_groups,
-                     insets_kept=_group_mask(rigid_groups, len(pts)),
-                     rigid_items=rigid_items, skirt_items=skirts, neighbours=neighbours,
-                     looseness=loose, smoother=LooseSmoother(neighbours, loose),
-                     bind_labels=region_labels,
-                     layers=layer_gaps(ref_query, pts, offsets,
-                                       [(i, j, g) for i, j, g in layer_order(items, offsets, pts, ref_clear)
-                                        if items[i].name not in rigid_items],  # rigid parts move as a whole
-                                       ref_clear, foot=foot["point"]),
-                     ref_body=body.points, item_faces=item_faces, item_edges=edges(item_faces),
-                     ref_foot=(foot["triangle"], foot["bary"]), body_query=ref_query,
+    order = [(i, j, g) for i, j, g in layer_order(items, offsets, pts, ref_clear)
+             if items[i].name not in rigid_items]  # rigid parts move as a whole
+    return DressPlan(items=items, binding=binding, offsets=offsets, ref_points=pts, ref_body=body.points,
+                     ref_clearance=ref_clear, ref_foot=Footprint(foot["triangle"], foot["bary"]),
+                     body_query=ref_query, regions=item_regions, mesh=mesh,
+                     rigid_groups=rigid_groups, rigid_items=rigid_items,
+                     insets_kept=group_mask(rigid_groups, len(pts)),
+                     looseness=loose, smoother=LooseSmoother(mesh.neighbours, loose),
+                     layers=layer_gaps(ref_query, pts, offsets, order, ref_clear, foot=foot["point"]),
                      timings={"regions_s": t1 - t0, "bind_s": t2 - t1, "plan_rest_s": t3 - t2})

@@ -19,7 +19,6 @@ from .corrections import off_skin
 from .layers import keep_layers
 from .plan import DressPlan
 from ..geometry.closest import SurfaceQuery
-from ..geometry.mesh import edges
 
 UNTANGLE_CLEARANCE_DRIFT = 0.001  # m: the untangle may worsen an item's median clearance error by at most this
 RIGID_RELEASE = 0.05  # rigid groups with more of their vertices newly > 1 mm inside the target move freely
@@ -180,7 +179,7 @@ def relax_stretch(plan_: DressPlan, body_points: np.ndarray, points: np.ndarray,
         return points, np.zeros(len(points), dtype=bool), {}
     return U.relax_edges(plan_.ref_points, points, item_edges,
                          lambda idx: stretch_limits(plan_, body_points, item_edges[idx], vr),
-                         plan_.neighbours, fixed, constraints, faces, lambda p: detect(p)[0], candidates=cand)
+                         plan_.mesh.neighbours, fixed, constraints, faces, lambda p: detect(p)[0], candidates=cand)
 
 
 def keep_fit(plan_: DressPlan, query: SurfaceQuery, before: np.ndarray, after: np.ndarray, touched: np.ndarray,
@@ -235,10 +234,7 @@ def untangle_items(plan_: DressPlan, body_points: np.ndarray, pts: np.ndarray, q
     :func:`untangle.untangle`.
     Returns (points (M, 3), touched (M,) bool, stats dict)."""
     grad = deformation_gradients(plan_, body_points, rigid_maps)
-    faces = plan_.item_faces
-    if faces is None:
-        faces = np.concatenate([m.faces + a for m, a in zip(plan_.items, plan_.offsets[:-1])]).astype(np.int64)
-    item_edges = plan_.item_edges if plan_.item_edges is not None else edges(faces)
+    faces, item_edges = plan_.mesh.faces, plan_.mesh.edges
     known = footprints is not None
     if plan_.layers and not known:
         res = query.closest(pts)
@@ -249,7 +245,7 @@ def untangle_items(plan_: DressPlan, body_points: np.ndarray, pts: np.ndarray, q
         work_footprints = None
     constraints = UntangleConstraints(plan_, query, target, faces, grad, work_footprints, bisect_steps)
     detect = U.BadElements(plan_.ref_points, faces, item_edges, grad)
-    new, touched, stats = U.untangle(plan_.ref_points, pts, faces, item_edges, plan_.neighbours, grad,
+    new, touched, stats = U.untangle(plan_.ref_points, pts, faces, item_edges, plan_.mesh.neighbours, grad,
                                      constraints, detect=detect, **kw)
     if relax:
         new, relaxed, st = relax_stretch(plan_, body_points, new, item_edges, faces, constraints, detect)
@@ -268,10 +264,5 @@ def stretch_limits(plan_: DressPlan, body_points: np.ndarray, item_edges: np.nda
     range :func:`metrics.shape_change` judges them by; vertex_range:
     :func:`body_stretch.vertex_stretch` of the binding if already known."""
     b = plan_.binding
-    if plan_.ref_foot is None:
-        res = SurfaceQuery(b.faces, plan_.ref_body).closest(plan_.ref_points)
-        foot = (res["triangle"], res["bary"])
-    else:
-        foot = plan_.ref_foot
     return stretch_range(plan_.ref_points, item_edges, b.triangles, plan_.ref_body, body_points, b.faces,
-                         foot[0], foot[1], plan_.ref_clearance, vertex_range)
+                         plan_.ref_foot.triangle, plan_.ref_foot.bary, plan_.ref_clearance, vertex_range)
