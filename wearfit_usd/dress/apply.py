@@ -58,15 +58,23 @@ class DressResult:
 class PassOptions:
     """Options of the passes that correct an evaluated plan (see :func:`apply`).
 
-    margin: m, vertices whose estimated clearance is below this get the exact
-        penetration test;
-    near_other: m, ... and so do those this close to a body vertex of another
-        region than their own;
-    push_inherited, inherited_clearance: push vertices that were already
-        deeper than ``inherited_clearance`` (m) inside the reference body out
-        to that clearance;
-    spread: spread the single-vertex corrections over the item mesh;
-    untangle: re-solve folded or over-stretched patches afterwards.
+    Attributes
+    ----------
+    margin : float
+        m; vertices whose estimated clearance is below this get the exact
+        penetration test.
+    near_other : float
+        m; so do those this close to a body vertex of another region than
+        their own.
+    push_inherited : bool
+        Push vertices that were already deeper than ``inherited_clearance``
+        inside the reference body out to that clearance.
+    inherited_clearance : float
+        m; see ``push_inherited``.
+    spread : bool
+        Spread the single-vertex corrections over the item mesh.
+    untangle : bool
+        Re-solve folded or over-stretched patches afterwards.
     """
     margin: float = 0.003
     near_other: float = 0.03
@@ -105,10 +113,23 @@ class Applied(NamedTuple):
 
 
 class Footprints:
-    """The closest body points of item points (:meth:`SurfaceQuery.closest`
-    keys ``distance`` (M,), ``point`` (M, 3), ``normal`` (M, 3) in
-    :attr:`closest`), kept current by re-querying only the vertices that
-    moved since their footprint was taken (:meth:`refresh`)."""
+    """The closest body points of item points, kept current by re-querying only
+    the vertices that moved since their footprint was taken (:meth:`refresh`).
+
+    Parameters
+    ----------
+    query : SurfaceQuery
+        On the current body.
+    points : (M, 3) float array
+        Item points.
+
+    Attributes
+    ----------
+    closest : dict
+        :meth:`SurfaceQuery.closest` keys ``distance`` (M,), ``point`` (M, 3),
+        ``normal`` (M, 3); the form :func:`layers.keep_layers` and
+        :func:`repair.untangle_items` take.
+    """
 
     KEYS = ("distance", "point", "normal")
 
@@ -119,7 +140,13 @@ class Footprints:
         self._taken_at = points.copy()
 
     def refresh(self, points: np.ndarray) -> None:
-        """Re-query the vertices of ``points`` (M, 3) that moved."""
+        """Re-query the vertices that moved.
+
+        Parameters
+        ----------
+        points : (M, 3) float array
+            The item points now.
+        """
         sv = np.flatnonzero((points != self._taken_at).any(axis=1))
         res = self.query.closest(points[sv])
         for k in self.closest:
@@ -128,9 +155,21 @@ class Footprints:
 
 
 def evaluate(plan_: DressPlan, body_points: np.ndarray) -> Evaluation:
-    """The plan on body points (N, 3) of its body topology: the binding, the
-    rigid parts placed by their similarity transforms, the loose parts
-    smoothed (:class:`corrections.LooseSmoother`)."""
+    """The plan on a body, before any correction: the binding, the rigid parts
+    placed by their similarity transforms, the loose parts smoothed
+    (:class:`corrections.LooseSmoother`).
+
+    Parameters
+    ----------
+    plan_ : DressPlan
+    body_points : (N, 3) float array
+        Body points of the plan's body topology.
+
+    Returns
+    -------
+    Evaluation
+        free (M, 3), points (M, 3), rigid_maps.
+    """
     free = plan_.binding.evaluate(body_points)
     pts = free.copy()
     rigid_maps = []
@@ -144,19 +183,29 @@ def evaluate(plan_: DressPlan, body_points: np.ndarray) -> Evaluation:
 
 
 def clearance_targets(plan_: DressPlan, push_inherited: bool, inherited_clearance: float) -> np.ndarray:
-    """(M,) clearance (m) each vertex is pushed out to if found inside the
-    body, NaN = leave it: the reference clearance where it was outside the
-    reference body; with ``push_inherited``, ``inherited_clearance`` where it
-    was deeper than that inside it.
+    """The clearance each vertex is pushed out to if found inside the body.
 
-    Inherited penetrations only deeper than inherited_clearance (skin showing
-    through); shallower ones lie on the skin (eyebrows) and are left alone.
-    Rigid parts keep their authored insets (a shoe's insole 0.5-5 mm inside
-    the foot sole, hair-card roots under the scalp): they move as a whole,
-    and pushing single vertices of them out to the surface is what bent them
-    (every over-stretched shoe and short-hair edge on the reference-shaped
-    CMU-rig body came from it); they are still pushed out where they newly
-    penetrate.
+    The reference clearance where the vertex was outside the reference body;
+    with ``push_inherited``, ``inherited_clearance`` where it was deeper than
+    that inside it (skin showing through); shallower ones lie on the skin
+    (eyebrows) and are left alone. Rigid parts keep their authored insets (a
+    shoe's insole 0.5-5 mm inside the foot sole, hair-card roots under the
+    scalp): they move as a whole, and pushing single vertices of them out to
+    the surface is what bent them (every over-stretched shoe and short-hair
+    edge on the reference-shaped CMU-rig body came from it); they are still
+    pushed out where they newly penetrate.
+
+    Parameters
+    ----------
+    plan_ : DressPlan
+    push_inherited : bool
+    inherited_clearance : float
+        m.
+
+    Returns
+    -------
+    (M,) float array
+        Clearance (m); NaN = leave the vertex where it is.
     """
     inherited = push_inherited & (plan_.ref_clearance < -inherited_clearance)
     # (the plan's rigid parts, also when released on this body)
@@ -167,13 +216,33 @@ def clearance_targets(plan_: DressPlan, push_inherited: bool, inherited_clearanc
 
 def penetration_candidates(plan_: DressPlan, body_points: np.ndarray, body_faces: np.ndarray, points: np.ndarray,
                            margin: float, near_other: float) -> Candidates:
-    """The item vertices (points (M, 3)) that may be inside the body (N, 3):
-    a cheap local test against each vertex's own bound triangles picks those
+    """The item vertices that may be inside the body: only these get the exact
+    signed-distance query.
+
+    A cheap local test against each vertex's own bound triangles picks those
     close to (or inside) them, or close to another body region (a posed limb
     pressing into the torso...); a bulge of the same region (a heavier belly
     or thigh under a loose skirt) is far from the vertex's own triangles, so
     the clearance is also estimated through the nearest body vertex and its
-    normal. Only these get the exact signed-distance query."""
+    normal.
+
+    Parameters
+    ----------
+    plan_ : DressPlan
+    body_points : (N, 3) float array
+    body_faces : (T, 3) int array
+    points : (M, 3) float array
+        Item points.
+    margin : float
+        m; vertices whose estimated clearance is below this are candidates.
+    near_other : float
+        m; so are those this close to a body vertex of another region.
+
+    Returns
+    -------
+    Candidates
+        mask (M,) bool, local (M,) and estimate (M,) clearances (m).
+    """
     d_loc, _ = local_signed_distance(plan_.binding, body_points, points)
     cand = d_loc < margin
     dn, vn = cKDTree(body_points).query(points, k=1)
@@ -186,8 +255,19 @@ def penetration_candidates(plan_: DressPlan, body_points: np.ndarray, body_faces
 
 def ring_neighbours(plan_: DressPlan, spread: bool) -> sp.csr_matrix:
     """The adjacency :func:`corrections.push_out` smooths the 1-ring of pushed
-    vertices over: the item mesh's; with ``spread`` only the rigid parts'
-    (the others' corrections are spread by :func:`spread_pass` instead)."""
+    vertices over.
+
+    Parameters
+    ----------
+    plan_ : DressPlan
+    spread : bool
+        If set, only the rigid parts' adjacency (the other corrections are
+        spread by :func:`spread_pass` instead); else the whole item mesh's.
+
+    Returns
+    -------
+    (M, M) sparse matrix
+    """
     neighbours = plan_.mesh.neighbours
     if not spread:
         return neighbours
@@ -198,11 +278,29 @@ def ring_neighbours(plan_: DressPlan, spread: bool) -> sp.csr_matrix:
 
 def push_out_pass(plan_: DressPlan, query: SurfaceQuery, points: np.ndarray, target: np.ndarray,
                   candidates: np.ndarray, ring: sp.spmatrix) -> Corrected:
-    """Push the ``candidates`` (M,) bool found inside the body out to their
-    ``target`` clearance (:func:`corrections.push_out`, smoothing the 1-ring
-    over ``ring``); where that moved loose parts, spread the push over their
-    neighbourhood (a smooth bulge, not a spike) and push out what went back
-    inside."""
+    """Push the candidates found inside the body out to their target clearance
+    (:func:`corrections.push_out`); where that moved loose parts, spread the
+    push over their neighbourhood (a smooth bulge, not a spike) and push out
+    what went back inside.
+
+    Parameters
+    ----------
+    plan_ : DressPlan
+    query : SurfaceQuery
+        On the current body.
+    points : (M, 3) float array
+    target : (M,) float array
+        :func:`clearance_targets`.
+    candidates : (M,) bool array
+        The vertices to test.
+    ring : (M, M) sparse matrix
+        :func:`ring_neighbours`.
+
+    Returns
+    -------
+    Corrected
+        points (M, 3), moved (M,) bool.
+    """
     pts, moved = push_out(query, points, target, mask=candidates, neighbours=ring)
     if np.any(moved & (plan_.looseness > 0)):
         pts = plan_.smoother(pts, plan_.ref_points)
@@ -213,15 +311,30 @@ def push_out_pass(plan_: DressPlan, query: SurfaceQuery, points: np.ndarray, tar
 
 
 def spread_pass(plan_: DressPlan, before: np.ndarray, single: np.ndarray, moved: np.ndarray) -> Corrected:
-    """The single-vertex corrections ``single - before`` (M, 3) (of the
-    ``moved`` (M,) bool vertices and any other that changed) spread smoothly
-    over the item mesh (:func:`corrections.spread_corrections`, rigid parts
-    excluded): single-vertex corrections stretch every edge at them. An item
-    the spread would move as a whole (a thin necklace lifted over a shirt)
-    keeps the single-vertex corrections: the spread may change its median
-    clearance by at most ``SPREAD_CLEARANCE_DRIFT`` (its extra displacement
-    bounds the clearance change). Returns the points and the vertices the
-    spread moved."""
+    """Single-vertex corrections spread smoothly over the item mesh
+    (:func:`corrections.spread_corrections`, rigid parts excluded): alone they
+    stretch every edge at them.
+
+    An item the spread would move as a whole (a thin necklace lifted over a
+    shirt) keeps the single-vertex corrections: the spread may change its
+    median clearance by at most ``SPREAD_CLEARANCE_DRIFT`` (its extra
+    displacement bounds the clearance change).
+
+    Parameters
+    ----------
+    plan_ : DressPlan
+    before : (M, 3) float array
+        The points before the corrections.
+    single : (M, 3) float array
+        The points after them.
+    moved : (M,) bool array
+        The corrected vertices (any other that changed counts too).
+
+    Returns
+    -------
+    Corrected
+        points (M, 3), moved (M,) bool: the vertices the spread moved.
+    """
     req = moved | (np.abs(single - before).max(axis=1) > 1e-6)
     pts, spread_v = spread_corrections(plan_.ref_points, before, single, req, plan_.mesh.neighbours,
                                        fixed=plan_.rigid_mask())
@@ -237,10 +350,33 @@ def recheck_spread(plan_: DressPlan, query: SurfaceQuery, before: np.ndarray, sp
                    target: np.ndarray, candidates: Candidates, margin: float,
                    footprints: Footprints | None) -> Corrected:
     """The vertices a spread moved, checked once more: only those it moved by
-    more than their estimated clearance (less the margin) can have gone
-    inside the body (pushed out again), and the outer layers among them are
-    kept over the items under them. Returns the points and every vertex
-    moved (the spread's included)."""
+    more than their estimated clearance (less the margin) can have gone inside
+    the body (pushed out again), and the outer layers among them are kept over
+    the items under them.
+
+    Parameters
+    ----------
+    plan_ : DressPlan
+    query : SurfaceQuery
+        On the current body.
+    before : (M, 3) float array
+        The points before any correction.
+    spread : Corrected
+        :func:`spread_pass`'s result.
+    target : (M,) float array
+        :func:`clearance_targets`.
+    candidates : Candidates
+        Their clearance estimates.
+    margin : float
+        m.
+    footprints : Footprints or None
+        Refreshed here; None only for a plan without layers.
+
+    Returns
+    -------
+    Corrected
+        points (M, 3), moved (M,) bool (the spread's vertices included).
+    """
     shift = np.linalg.norm(spread.points - before, axis=1)
     check = spread.moved & (np.minimum(candidates.local, candidates.estimate) < shift + margin)
     pts, pushed = push_out(query, spread.points, target, mask=check)
@@ -255,13 +391,33 @@ def recheck_spread(plan_: DressPlan, query: SurfaceQuery, before: np.ndarray, sp
 
 def correct_penetrations(plan_: DressPlan, body_points: np.ndarray, body_faces: np.ndarray, query: SurfaceQuery,
                          points: np.ndarray, target: np.ndarray, options: PassOptions):
-    """The penetration and layer passes on evaluated item points (M, 3):
-    vertices found inside the body pushed out to their ``target`` clearance
-    (:func:`clearance_targets`), outer layers kept over the items under them
-    (:func:`layers.keep_layers`), and with ``options.spread`` these
-    single-vertex corrections spread over the item mesh and checked again.
-    Returns (:class:`Corrected`, :class:`Footprints` of the result or None
-    when the plan has no layers)."""
+    """The penetration and layer passes on evaluated item points.
+
+    Vertices found inside the body are pushed out to their target clearance,
+    outer layers kept over the items under them (:func:`layers.keep_layers`),
+    and with ``options.spread`` these single-vertex corrections are spread
+    over the item mesh and checked again.
+
+    Parameters
+    ----------
+    plan_ : DressPlan
+    body_points : (N, 3) float array
+    body_faces : (T, 3) int array
+    query : SurfaceQuery
+        On ``body_points``.
+    points : (M, 3) float array
+        :func:`evaluate`'s points.
+    target : (M,) float array
+        :func:`clearance_targets`.
+    options : PassOptions
+
+    Returns
+    -------
+    corrected : Corrected
+        points (M, 3), moved (M,) bool.
+    footprints : Footprints or None
+        Of the corrected points; None when the plan has no layers.
+    """
     cand = penetration_candidates(plan_, body_points, body_faces, points, options.margin, options.near_other)
     debug(f"penetration pass: {int(cand.mask.sum())} of {len(cand.mask)} vertices tested")
     # with ``spread`` the per-vertex corrections are made alone and then
@@ -288,8 +444,8 @@ def correct_penetrations(plan_: DressPlan, body_points: np.ndarray, body_faces: 
 
 def apply(plan_: DressPlan, body_points: np.ndarray, body_faces: np.ndarray, penetration: bool = True,
           query: SurfaceQuery | None = None, options: PassOptions | None = None) -> Applied:
-    """Evaluate a plan on fitted body points (N, 3) of its body topology
-    (faces (T, 3)) and, with ``penetration``, correct the result.
+    """Evaluate a plan on fitted body points and, with ``penetration``, correct
+    the result.
 
     Vertices that end inside the body but were outside the reference body
     are pushed out to their reference clearance. Those that were inside the
@@ -305,20 +461,34 @@ def apply(plan_: DressPlan, body_points: np.ndarray, body_faces: np.ndarray, pen
     the sole also where :func:`repair.release_misfits` freed the shoe on this
     body).
 
-    options.spread: the penetration and layer passes move single vertices;
-    spread their corrections smoothly over the item mesh
+    With ``options.spread`` the penetration and layer corrections (single
+    vertices) are spread smoothly over the item mesh
     (:func:`corrections.spread_corrections`, every vertex at least as far as
     its own correction; rigid parts excluded) instead of only smoothing their
-    1-ring.
+    1-ring. With ``options.untangle`` the neighbourhoods of folded item
+    triangles and badly stretched edges are then re-solved so they deform like
+    the body under them, under the same constraints
+    (:func:`repair.untangle_items`).
 
-    options.untangle: after the penetration and layer passes, re-solve the
-    neighbourhoods of folded item triangles and badly stretched edges so they
-    deform like the body under them, under the same constraints
-    (:func:`repair.untangle_items`; only with ``penetration``).
+    Parameters
+    ----------
+    plan_ : DressPlan
+    body_points : (N, 3) float array
+        The fitted body, of the plan's body topology.
+    body_faces : (T, 3) int array
+        Its triangles (only used with ``penetration`` and no ``query``).
+    penetration : bool
+        Run the correction passes.
+    query : SurfaceQuery, optional
+        On ``body_points``, if already built.
+    options : PassOptions, optional
+        Default ``PassOptions()``.
 
-    query: a :class:`SurfaceQuery` on ``body_points`` if already built.
-    Returns :class:`Applied` (points (M, 3), free points (M, 3), moved (M,)
-    bool, timings).
+    Returns
+    -------
+    Applied
+        points (M, 3), free points (M, 3) (the binding alone), moved (M,) bool,
+        timings dict.
     """
     options = options or PassOptions()
     t0 = time.perf_counter()

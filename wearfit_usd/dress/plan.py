@@ -42,7 +42,19 @@ DEGENERATE_BODY_REL = 1e-10  # body triangles below this x the median doubled ar
 
 
 def group_mask(groups: list, m: int) -> np.ndarray:
-    """(m,) bool: the vertices of rigid groups [(vertex indices, ...)]."""
+    """The vertices of rigid groups.
+
+    Parameters
+    ----------
+    groups : list
+        [(vertex indices, ...)].
+    m : int
+        Number of vertices.
+
+    Returns
+    -------
+    (m,) bool array
+    """
     mask = np.zeros(m, dtype=bool)
     for gv, *_ in groups:
         mask[gv] = True
@@ -141,7 +153,12 @@ class DressPlan:
         return group_mask(self.rigid_groups, len(self.ref_points))
 
     def item_slices(self) -> list[slice]:
-        """The rows of each item in the stacked arrays."""
+        """The rows of each item in the stacked arrays.
+
+        Returns
+        -------
+        list of slice
+        """
         return [slice(int(a), int(b)) for a, b in zip(self.offsets[:-1], self.offsets[1:])]
 
     def rebound(self, body_points: np.ndarray, item_points: np.ndarray) -> DressPlan:
@@ -215,7 +232,19 @@ def _auto_rigid(item: Mesh, ref_clear: np.ndarray, lab: np.ndarray, comp: np.nda
 
 
 def stack_items(ref: Character):
-    """The items of ``ref`` stacked: (items, offsets (n_items + 1,), points (M, 3))."""
+    """The items of ``ref`` stacked in item order.
+
+    Parameters
+    ----------
+    ref : Character
+
+    Returns
+    -------
+    items : list of Mesh
+    offsets : (n_items + 1,) int array
+        Start of each item's rows.
+    points : (M, 3) float array
+    """
     items = list(ref.items)
     if not items:
         raise InputError(ref.source, "the reference holds no wearable items (no Mesh besides the body)")
@@ -224,9 +253,18 @@ def stack_items(ref: Character):
 
 
 def degenerate_triangles(ref: Character) -> np.ndarray:
-    """(T,) bool: the zero-area body triangles of ``ref`` (doubled area at
-    most ``DEGENERATE_BODY_REL`` x the median, :func:`geometry.mesh.nondegenerate`),
-    which binding leaves out; an error if every triangle is."""
+    """The zero-area body triangles of ``ref`` (doubled area at most
+    ``DEGENERATE_BODY_REL`` x the median, :func:`geometry.mesh.nondegenerate`),
+    which binding leaves out, with a warning; an error if every triangle is.
+
+    Parameters
+    ----------
+    ref : Character
+
+    Returns
+    -------
+    (T,) bool array
+    """
     degenerate = ~nondegenerate(ref.body.points, ref.body.faces, rel=DEGENERATE_BODY_REL)
     if degenerate.all():
         raise GeometryError(ref.source, "every body triangle is degenerate (zero area)")
@@ -243,8 +281,19 @@ class BodyRegions(NamedTuple):
 
 
 def body_regions(ref: Character, use_regions: bool) -> BodyRegions:
-    """The reference body segmented by skin weights (:mod:`regions`), or
-    one region if ``use_regions`` is off or the body has no skin weights."""
+    """The reference body segmented by skin weights (:mod:`regions`), or one
+    region if ``use_regions`` is off or the body has no skin weights.
+
+    Parameters
+    ----------
+    ref : Character
+    use_regions : bool
+
+    Returns
+    -------
+    BodyRegions
+        vertex (N,), triangle (T,) regions and leg_share (N,).
+    """
     body = ref.body
     if use_regions and ref.skeleton is not None and body.joint_indices is not None:
         shares = R.region_shares(body, ref.skeleton)
@@ -258,12 +307,29 @@ def body_regions(ref: Character, use_regions: bool) -> BodyRegions:
 
 def bind_items(body: Mesh, points: np.ndarray, labels: np.ndarray, regions: BodyRegions,
                degenerate: np.ndarray, k: int) -> Binding:
-    """Bind item points (M, 3) with their regions ``labels`` (M,) (skirt
-    parts: HIPS) to the ``k`` nearest non-degenerate body triangles of their
-    region. Skirt parts hang from the hips: they may only use torso
-    triangles that the legs do not move (no leg skin weight), so spreading
-    the legs neither tears nor swings them; the push-out pass then keeps the
-    legs inside. Torso vertices may still use hip triangles."""
+    """Bind item points to the ``k`` nearest non-degenerate body triangles of
+    their region.
+
+    Skirt parts hang from the hips: they may only use torso triangles that the
+    legs do not move (no leg skin weight), so spreading the legs neither tears
+    nor swings them; the push-out pass then keeps the legs inside. Torso
+    vertices may still use hip triangles.
+
+    Parameters
+    ----------
+    body : Mesh
+        The reference body.
+    points : (M, 3) float array
+    labels : (M,) int array
+        Region of each item vertex (skirt parts: HIPS).
+    regions : BodyRegions
+    degenerate : (T,) bool array
+    k : int
+
+    Returns
+    -------
+    Binding
+    """
     tri_labels = regions.triangle
     hips = (tri_labels == R.TORSO) & (regions.leg_share[body.faces].max(axis=1) < 0.02)
     mask_labels = np.where(hips & np.isin(R.HIPS, labels), R.HIPS, tri_labels)
@@ -276,13 +342,31 @@ def bind_items(body: Mesh, points: np.ndarray, labels: np.ndarray, regions: Body
 
 def reference_clearance(ref: Character, query: SurfaceQuery, items: list[Mesh], offsets: np.ndarray,
                         points: np.ndarray, given: np.ndarray | None, far: float, strict_far: bool):
-    """The clearance each item vertex keeps: the true signed distance of the
-    item points (M, 3) to the reference body (the offset along a bound
-    triangle's plane extrapolates: on a bent foot a rigid shoe's plane
-    offsets reach tens of centimetres), or ``given`` (M,). Items farther than
-    ``far`` (m) from the body are warned about (an error with
-    ``strict_far``). Returns (clearance (M,), closest reference skin points
-    (:meth:`SurfaceQuery.closest` of ``points``))."""
+    """The clearance each item vertex keeps: the true signed distance of the item
+    points to the reference body (the offset along a bound triangle's plane
+    extrapolates: on a bent foot a rigid shoe's plane offsets reach tens of
+    centimetres), or the ``given`` one. Items farther than ``far`` from the
+    body are warned about (an error with ``strict_far``).
+
+    Parameters
+    ----------
+    ref : Character
+    query : SurfaceQuery
+        On the reference body.
+    items : list of Mesh
+    offsets : (n_items + 1,) int array
+    points : (M, 3) float array
+    given : (M,) float array or None
+    far : float
+        m.
+    strict_far : bool
+
+    Returns
+    -------
+    clearance : (M,) float array
+    foot : dict
+        :meth:`SurfaceQuery.closest` of ``points``.
+    """
     foot = query.closest(points)
     if given is None:
         clearance = foot["distance"]
@@ -302,7 +386,17 @@ def reference_clearance(ref: Character, query: SurfaceQuery, items: list[Mesh], 
 
 
 def stacked_mesh(items: list[Mesh], offsets: np.ndarray) -> StackedMesh:
-    """The items' triangles, edges and adjacency in stacked vertex indices."""
+    """The items' triangles, edges and adjacency in stacked vertex indices.
+
+    Parameters
+    ----------
+    items : list of Mesh
+    offsets : (n_items + 1,) int array
+
+    Returns
+    -------
+    StackedMesh
+    """
     faces = np.concatenate([m.faces + a for m, a in zip(items, offsets[:-1])]).astype(np.int64)
     neighbours = sp.block_diag([adjacency(m.faces, m.n_points) for m in items], format="csr")
     return StackedMesh(faces=faces, edges=edges(faces), neighbours=neighbours)
@@ -310,13 +404,32 @@ def stacked_mesh(items: list[Mesh], offsets: np.ndarray) -> StackedMesh:
 
 def find_rigid_groups(items: list[Mesh], offsets: np.ndarray, labels: np.ndarray, clearance: np.ndarray,
                       binding: Binding, body: Mesh, rigid, auto: AutoRigid):
-    """The item parts moved as a whole: with ``rigid="auto"`` the small stiff
-    parts of :class:`AutoRigid`, with a list of item names those items per
-    body region, none with "none"/None. Each group comes with its bound body
-    patch: the body vertices of the triangles its vertices use, weighted by
-    how much they are used. Returns (groups [(stacked vertex indices (P,),
-    body vertices (Q,), their weights (Q,))], names of the items with
-    groups)."""
+    """The item parts moved as a whole, each with its bound body patch: the body
+    vertices of the triangles its vertices use, weighted by how much they are
+    used.
+
+    Parameters
+    ----------
+    items : list of Mesh
+    offsets : (n_items + 1,) int array
+    labels : (M,) int array
+        Body region of each item vertex.
+    clearance : (M,) float array
+    binding : Binding
+    body : Mesh
+        The reference body.
+    rigid : "auto", "none", None or list of str
+        "auto": the small stiff parts of ``auto``; a list: those items, one
+        group per body region; "none"/None: no group.
+    auto : AutoRigid
+
+    Returns
+    -------
+    groups : list
+        [(stacked vertex indices (P,), body vertices (Q,), their weights (Q,))].
+    names : list of str
+        The items with groups.
+    """
     groups, names = [], []
     if rigid == "none" or rigid is None:
         return groups, names
@@ -344,9 +457,23 @@ def find_rigid_groups(items: list[Mesh], offsets: np.ndarray, labels: np.ndarray
 
 def loose_weights(items: list[Mesh], offsets: np.ndarray, skirts: list, clearance: np.ndarray,
                   groups: list) -> np.ndarray:
-    """(M,) how much each vertex's displacement is smoothed
-    (:func:`corrections.looseness`): skirt items entirely, rigid parts not at
-    all (they move as a whole already)."""
+    """How much each vertex's displacement is smoothed (:func:`corrections.looseness`):
+    skirt items entirely, rigid parts not at all (they move as a whole already).
+
+    Parameters
+    ----------
+    items : list of Mesh
+    offsets : (n_items + 1,) int array
+    skirts : list of str
+    clearance : (M,) float array
+    groups : list
+        Rigid groups.
+
+    Returns
+    -------
+    (M,) float array
+        0..1.
+    """
     skirt_mask = np.zeros(len(clearance), dtype=bool)
     for item, a, b in zip(items, offsets[:-1], offsets[1:]):
         if item.name in skirts:
@@ -362,22 +489,38 @@ def plan(ref: Character, k: int = 5, use_regions: bool = True, rigid="auto", aut
          ref_clearance: np.ndarray | None = None) -> DressPlan:
     """Bind every item of ``ref`` to its body (done once per reference).
 
-    rigid: "auto" (small stiff parts, see :class:`AutoRigid`, thresholds
-        ``auto_rigid``), "none", or a list of item names moved rigidly as a
-        whole (per body region).
-    far: m, item vertices farther than this from the body are warned about,
-        an error with ``strict_far``.
-    regions: the item regions of an earlier plan of these items
-        (``DressPlan.regions``), e.g. of the reference in its rest pose:
-        their binding regions and skirt items are used. Regions are best told
-        apart with the limbs away from the body: a posed body (hands hanging
-        beside a skirt) would hand skirt vertices to the arms. Default: found
-        on this body.
-    ref_clearance: (M,) clearance each item vertex keeps (signed distance to
-        the body it was authored on); default: measured on ``ref``. A posed
-        reference passes its rest-pose clearance: posing moves rigid parts
-        (a shoe over bending toes) through the skin, which is no reason to
-        leave them there.
+    Parameters
+    ----------
+    ref : Character
+        The reference: body and items (internal space).
+    k : int
+        Body triangles per item vertex.
+    use_regions : bool
+        Bind each vertex within its body region (:mod:`regions`).
+    rigid : "auto", "none" or list of str
+        "auto": small stiff parts (see :class:`AutoRigid`); "none"; or the
+        names of items moved rigidly as a whole (per body region).
+    auto_rigid : AutoRigid, optional
+        The thresholds of "auto".
+    far : float
+        m; item vertices farther than this from the body are warned about.
+    strict_far : bool
+        Make that an error.
+    regions : ItemRegions, optional
+        The regions of an earlier plan of these items (``DressPlan.regions``),
+        e.g. of the reference in its rest pose: its binding regions and skirt
+        items are used. Regions are best told apart with the limbs away from
+        the body: a posed body (hands hanging beside a skirt) would hand skirt
+        vertices to the arms. Default: found on this body.
+    ref_clearance : (M,) float array, optional
+        Clearance each item vertex keeps (signed distance to the body it was
+        authored on); default: measured on ``ref``. A posed reference passes
+        its rest-pose clearance: posing moves rigid parts (a shoe over bending
+        toes) through the skin, which is no reason to leave them there.
+
+    Returns
+    -------
+    DressPlan
     """
     t0 = time.perf_counter()
     items, offsets, pts = stack_items(ref)

@@ -70,11 +70,21 @@ def release_misfits(plan_: DressPlan, body_points: np.ndarray, query: SurfaceQue
 
 
 def deformation_gradients(plan_: DressPlan, body_points: np.ndarray, rigid_maps: list) -> np.ndarray:
-    """(M, 3, 3) the deformation each item vertex should follow: the body's
-    triangle gradients from the plan's reference body to ``body_points``
-    (N, 3), blended with the binding weights; rigid parts' vertices take
-    their group's linear map ``s * rot`` from ``rigid_maps`` [(vertex indices,
-    (3, 3))]."""
+    """The deformation each item vertex should follow: the body's triangle
+    gradients from the plan's reference body to ``body_points``, blended with
+    the binding weights; rigid parts' vertices take their group's linear map.
+
+    Parameters
+    ----------
+    plan_ : DressPlan
+    body_points : (N, 3) float array
+    rigid_maps : list
+        [(vertex indices (P,), linear map ``s * rot`` (3, 3))] per rigid group.
+
+    Returns
+    -------
+    (M, 3, 3) float array
+    """
     b = plan_.binding
     tg = np.tile(np.eye(3), (len(b.faces), 1, 1))
     tg[b.used] = U.triangle_gradients(plan_.ref_body, body_points, b.faces[b.used])
@@ -85,22 +95,36 @@ def deformation_gradients(plan_: DressPlan, body_points: np.ndarray, rigid_maps:
 
 
 class UntangleConstraints:
-    """The constraints of the untangle (``constrain`` of
-    :func:`untangle.untangle` and :func:`untangle.relax_edges`):
-    ``constraints(points (M, 3), mask (M,) bool, before (M, 3)) -> (points,
-    moved (M,) bool)`` applies, to the masked (re-solved) vertices only, the
-    push-out to their ``target`` (M,) clearance (m; NaN = none) and the layer
-    order of the plan, with one closest-point query of the masked vertices,
-    then lifts the patches these per-vertex moves folded as a whole
-    (:func:`untangle.lift_folds`).
+    """The constraints of the untangle: ``constrain`` of :func:`untangle.untangle`
+    and :func:`untangle.relax_edges`.
 
-    A vertex the solve took inside goes back along its own path to where it
-    re-enters its clearance (bisection, ``bisect_steps`` halvings, between
-    its valid position ``before`` the solve and the new one), not to the
-    closest skin point, which can lie on the far side of a thin gap (armpit,
-    crotch) and fold the patch. ``footprints`` (the closest body points of
-    the items, :meth:`SurfaceQuery.closest` keys distance, point, normal) are
-    updated in place for the layer pass.
+    Called as ``constraints(points (M, 3), mask (M,) bool, before (M, 3)) ->
+    (points (M, 3), moved (M,) bool)``: to the masked (re-solved) vertices
+    only, the push-out to their target clearance and the layer order of the
+    plan, with one closest-point query of the masked vertices; then the
+    patches these per-vertex moves folded are lifted as a whole
+    (:func:`untangle.lift_folds`). A vertex the solve took inside goes back
+    along its own path to where it re-enters its clearance
+    (:meth:`back_to_clearance`), not to the closest skin point, which can lie
+    on the far side of a thin gap (armpit, crotch) and fold the patch.
+
+    Parameters
+    ----------
+    plan_ : DressPlan
+    query : SurfaceQuery
+        On the current body.
+    target : (M,) float array
+        Clearance (m) to push out to; NaN = none.
+    faces : (F, 3) int array
+        The items' stacked triangles.
+    grad : (M, 3, 3) float array
+        :func:`deformation_gradients`.
+    footprints : dict or None
+        Closest body points of the items (:meth:`SurfaceQuery.closest` keys
+        distance, point, normal), updated in place for the layer pass; None
+        only for a plan without layers.
+    bisect_steps : int
+        Halvings of the path back to the clearance.
     """
 
     def __init__(self, plan_: DressPlan, query: SurfaceQuery, target: np.ndarray, faces: np.ndarray,
@@ -139,12 +163,24 @@ class UntangleConstraints:
         return p, moved
 
     def back_to_clearance(self, start: np.ndarray, end: np.ndarray, target: np.ndarray):
-        """Vertices that moved from ``start`` (P, 3) to ``end`` (P, 3) into
-        the body: the point of that path where they re-enter their clearance
-        ``target`` (P,) (or 0.5 mm if smaller); those still inside (the start
-        was inside too) at ``target`` off their closest skin point. Returns
-        (points (P, 3), their :meth:`SurfaceQuery.closest` result, distances
-        of the latter set to their target)."""
+        """Vertices that moved from ``start`` to ``end`` into the body: the point of
+        that path where they re-enter their clearance (or 0.5 mm if smaller),
+        found by bisection; those still inside (the start was inside too) go to
+        their clearance off their closest skin point.
+
+        Parameters
+        ----------
+        start, end : (P, 3) float arrays
+        target : (P,) float array
+            Clearance (m).
+
+        Returns
+        -------
+        points : (P, 3) float array
+        closest : dict
+            Their :meth:`SurfaceQuery.closest` result (distances of the points
+            placed off the skin set to their target).
+        """
         lo = np.zeros(len(start))  # fraction of the step known to be fine
         hi = np.ones(len(start))
         for _ in range(self.bisect_steps):
@@ -169,7 +205,25 @@ def relax_stretch(plan_: DressPlan, body_points: np.ndarray, points: np.ndarray,
     (:func:`untangle.relax_edges`, under the same constraints). Only edges
     outside the skin's own range can be outside the full range, which
     contains it: the full range is found for those and for the relaxed
-    region only. Returns (points (M, 3), relaxed (M,) bool, stats dict)."""
+    region only.
+
+    Parameters
+    ----------
+    plan_ : DressPlan
+    body_points : (N, 3) float array
+    points : (M, 3) float array
+        The untangled items.
+    item_edges : (E, 2) int array
+    faces : (F, 3) int array
+    constraints : UntangleConstraints
+    detect : untangle.BadElements
+
+    Returns
+    -------
+    points : (M, 3) float array
+    relaxed : (M,) bool array
+    stats : dict
+    """
     b = plan_.binding
     fixed = plan_.rigid_mask()
     vr = vertex_stretch(b.triangles, plan_.ref_body, body_points, b.faces)
@@ -185,15 +239,30 @@ def relax_stretch(plan_: DressPlan, body_points: np.ndarray, points: np.ndarray,
 def keep_fit(plan_: DressPlan, query: SurfaceQuery, before: np.ndarray, after: np.ndarray, touched: np.ndarray,
              distance_before: np.ndarray | None = None):
     """The untangle must not trade the fit for shape: an item whose median
-    clearance error (|clearance - reference clearance| over all its
-    vertices, the dressing metric) grows from ``before`` (M, 3) to ``after``
-    (M, 3) by more than ``UNTANGLE_CLEARANCE_DRIFT`` gets ``before`` back (a
-    thin closed tube such as a necklace, freed as a whole, can otherwise
-    slide around the neck). One query over the touched items before (unless
-    ``distance_before`` (M,) is known), one over the ``touched`` (M,) bool
-    vertices after: the others kept their clearance. ``after`` and
-    ``touched`` are updated in place. Returns the names of the reverted
-    items."""
+    clearance error (|clearance - reference clearance| over all its vertices,
+    the dressing metric) grows by more than ``UNTANGLE_CLEARANCE_DRIFT`` gets
+    its points from before the untangle back (a thin closed tube such as a
+    necklace, freed as a whole, can otherwise slide around the neck). One
+    query over the touched items before (unless known), one over the touched
+    vertices after: the others kept their clearance.
+
+    Parameters
+    ----------
+    plan_ : DressPlan
+    query : SurfaceQuery
+        On the current body.
+    before, after : (M, 3) float arrays
+        The items before and after the untangle; ``after`` is updated in place.
+    touched : (M,) bool array
+        The vertices the untangle moved; updated in place.
+    distance_before : (M,) float array, optional
+        Signed distances of ``before`` if known.
+
+    Returns
+    -------
+    list of str
+        The names of the items that got their points back.
+    """
     spans = [(item, a, b) for item, a, b in zip(plan_.items, plan_.offsets[:-1], plan_.offsets[1:])
              if touched[a:b].any()]
     rows = np.concatenate([np.arange(a, b) for _, a, b in spans]) if spans else np.zeros(0, dtype=np.int64)
@@ -220,19 +289,42 @@ def keep_fit(plan_: DressPlan, query: SurfaceQuery, before: np.ndarray, after: n
 def untangle_items(plan_: DressPlan, body_points: np.ndarray, pts: np.ndarray, query: SurfaceQuery,
                    target: np.ndarray, rigid_maps: list, bisect_steps: int = 5, relax: bool = True,
                    footprints: dict | None = None, **kw):
-    """Run :func:`untangle.untangle` on redressed items (points (M, 3)):
-    vertex gradients from the binding (:func:`deformation_gradients`, rigid
-    parts: their similarity ``s * rot`` from ``rigid_maps`` [(vertex indices,
-    (3, 3))]), constraints = :func:`corrections.push_out` to ``target`` (M,)
-    clearance (m) and :func:`layers.keep_layers`, both restricted to the
-    re-solved vertices (:class:`UntangleConstraints`). With ``relax``, edges
-    still outside the body's stretch range (:func:`stretch_limits`) are then
-    brought back into it (:func:`relax_stretch`). Items whose fit the
-    untangle worsened keep their input (:func:`keep_fit`). footprints: the
-    closest body points of ``pts`` (:meth:`SurfaceQuery.closest` keys
-    distance, point, normal) if already known; ``kw``: options of
-    :func:`untangle.untangle`.
-    Returns (points (M, 3), touched (M,) bool, stats dict)."""
+    """Run :func:`untangle.untangle` on redressed items.
+
+    Vertex gradients from the binding (:func:`deformation_gradients`; rigid
+    parts: their similarity), constraints = push-out to ``target`` and the
+    layer order, both restricted to the re-solved vertices
+    (:class:`UntangleConstraints`). With ``relax``, edges still outside the
+    body's stretch range (:func:`stretch_limits`) are then brought back into
+    it (:func:`relax_stretch`). Items whose fit the untangle worsened keep
+    their input (:func:`keep_fit`).
+
+    Parameters
+    ----------
+    plan_ : DressPlan
+    body_points : (N, 3) float array
+    pts : (M, 3) float array
+        The redressed items.
+    query : SurfaceQuery
+        On ``body_points``.
+    target : (M,) float array
+        Clearance (m) to push out to; NaN = none.
+    rigid_maps : list
+        [(vertex indices (P,), linear map ``s * rot`` (3, 3))] per rigid group.
+    bisect_steps : int
+    relax : bool
+    footprints : dict, optional
+        The closest body points of ``pts`` (:meth:`SurfaceQuery.closest` keys
+        distance, point, normal) if already known.
+    **kw
+        Options of :func:`untangle.untangle`.
+
+    Returns
+    -------
+    points : (M, 3) float array
+    touched : (M,) bool array
+    stats : dict
+    """
     grad = deformation_gradients(plan_, body_points, rigid_maps)
     faces, item_edges = plan_.mesh.faces, plan_.mesh.edges
     known = footprints is not None
