@@ -74,7 +74,8 @@ def run(full: bool, out_dir: Path) -> list[dict]:
     from wearfit_usd.dress.metrics import clearance_change, item_rigid_groups, shape_change
     from benchmarks.peers.mhclo import fit as mh_fit, shape_points, to_internal
     from wearfit_usd.dress.binding import bind
-    from wearfit_usd.dress.redress import dress, fitted_body_points, plan
+    from wearfit_usd.dress.apply import dress, fitted_body_points
+    from wearfit_usd.dress.plan import plan
     from wearfit_usd.io.usd import read_character
 
     usd = DATA / "usd"
@@ -202,7 +203,8 @@ def _large_outfit(ref, fitted: dict, n_total: int = 15000, repeat: int = 3) -> l
     from dataclasses import replace
     from wearfit_usd.geometry.closest import SurfaceQuery
     from wearfit_usd.dress.metrics import clearance_change, shape_change
-    from wearfit_usd.dress.redress import dress, plan
+    from wearfit_usd.dress.apply import dress
+    from wearfit_usd.dress.plan import plan
     from benchmarks.bench_animate import _layer_item, _outer_layer
     suit = max(ref.items, key=lambda m: m.n_points)
     layer = _layer_item(suit, _outer_layer(suit, 0.004), n_total - sum(m.n_points for m in ref.items))

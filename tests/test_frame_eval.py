@@ -4,7 +4,8 @@ import numpy as np
 from dataclasses import replace
 
 from wearfit_usd.animate.frame_eval import FrameEvaluator
-from wearfit_usd.dress.redress import apply, plan
+from wearfit_usd.dress.apply import apply
+from wearfit_usd.dress.plan import plan
 from wearfit_usd.motion.skinning import skin_points, skinning_matrices
 
 

@@ -95,7 +95,7 @@ def test_real_female_thin_ponytail(ref_female, usd_dir):
     by the strict figure: three hair-card slivers at 92-97 degrees): no
     flipped triangle by the main figure, its 52 degenerate reference
     triangles counted, at most the strict 0.056 %."""
-    from wearfit_usd.dress.redress import dress
+    from wearfit_usd.dress.apply import dress
     from wearfit_usd.io.usd import read_character
     tgt = read_character(usd_dir / "body_female_thin.usdc")
     rows = {r["item"]: r for r in M.dress_report(ref_female, tgt, dress(ref_female, tgt))}

@@ -7,8 +7,13 @@ import numpy as np
 import pytest
 import trimesh
 
-from wearfit_usd.dress import redress
+from wearfit_usd.dress.apply import dress, fitted_body_points
+from wearfit_usd.dress.corrections import SPREAD_RINGS, push_out, spread_corrections
+from wearfit_usd.dress.layers import LAYER_MIN_GAP, keep_layers, layer_gaps, layer_order
+from wearfit_usd.dress.plan import plan
+from wearfit_usd.dress.repair import release_misfits
 from wearfit_usd.geometry.closest import SurfaceQuery
+from wearfit_usd.geometry.mesh import adjacency, edges, similarity_fit
 from wearfit_usd.errors import InputError
 from wearfit_usd.model import Mesh
 from wearfit_usd.motion.skinning import skin_mesh
@@ -27,7 +32,7 @@ def heavy(usd_dir):
 
 
 def test_heavy_male_thresholds_per_item(ref_male, heavy):
-    res = redress.dress(ref_male, heavy)
+    res = dress(ref_male, heavy)
     qr = SurfaceQuery(ref_male.body.faces, ref_male.body.points)
     qt = SurfaceQuery(heavy.body.faces, heavy.body.points)
     assert [m.name for m in res.items] == [m.name for m in ref_male.items]
@@ -46,16 +51,16 @@ def test_heavy_male_thresholds_per_item(ref_male, heavy):
 def test_rigid_item_stays_rigid(ref_male, usd_dir):
     from wearfit_usd.io.usd import read_character
     tall = read_character(usd_dir / "body_male_tall.usdc")
-    res = redress.dress(ref_male, tall, rigid=["shoes01"], penetration=False)
+    res = dress(ref_male, tall, rigid=["shoes01"], penetration=False)
     sl = res.plan.item_slices()[[m.name for m in ref_male.items].index("shoes01")]
     src, dst = res.plan.ref_points[sl], res.points[sl]
     for side in (src[:, 0] > 0, src[:, 0] < 0):  # one transform per foot
-        s, rot, t = redress.similarity_fit(src[side], dst[side])
+        s, rot, t = similarity_fit(src[side], dst[side])
         assert np.abs(s * src[side] @ rot + t - dst[side]).max() < 1e-9
         assert 0.9 < s < 1.3
     # the free binding does stretch it (otherwise the test proves nothing)
     free = res.plan.binding.evaluate(tall.body.points)[sl]
-    s, rot, t = redress.similarity_fit(src, free)
+    s, rot, t = similarity_fit(src, free)
     assert np.abs(s * src @ rot + t - free).max() > 1e-3
 
 
@@ -107,7 +112,7 @@ def _legs_apart(char, degrees=25.0):
 
 
 def _max_edge_ratio(before, after, faces):
-    e = redress.edges(faces)
+    e = edges(faces)
     lb = np.linalg.norm(before[e[:, 0]] - before[e[:, 1]], axis=1)
     la = np.linalg.norm(after[e[:, 0]] - after[e[:, 1]], axis=1)
     return float((la / lb).max())
@@ -121,11 +126,11 @@ def test_skirt_does_not_tear_between_the_legs(ref_male):
     posed = _legs_apart(ref_male)
     target = copy.copy(ref_male)
     target.body = ref_male.body.copy_with_points(posed)
-    with_regions = redress.dress(ref, target, rigid="none", penetration=False)
-    without = redress.dress(ref, target, rigid="none", penetration=False, use_regions=False)
-    assert with_regions.plan.skirt_items == ["skirt"]
+    with_regions = dress(ref, target, rigid="none", penetration=False)
+    without = dress(ref, target, rigid="none", penetration=False, use_regions=False)
+    assert with_regions.plan.regions.skirt_items == ["skirt"]
     # no vertex is bound to triangles of both legs
-    lab = with_regions.plan.tri_labels[with_regions.plan.binding.triangles]
+    lab = with_regions.plan.regions.triangle[with_regions.plan.binding.triangles]
     both = np.any(lab == 1, axis=1) & np.any(lab == 2, axis=1)
     assert not both.any()
     r_with = _max_edge_ratio(pts, with_regions.points, faces)
@@ -135,8 +140,8 @@ def test_skirt_does_not_tear_between_the_legs(ref_male):
 
 
 def test_trousers_are_not_taken_for_a_skirt(ref_male):
-    p = redress.plan(ref_male)
-    assert p.skirt_items == []
+    p = plan(ref_male)
+    assert p.regions.skirt_items == []
 
 
 def test_push_out_moves_inside_points_to_their_clearance():
@@ -144,7 +149,7 @@ def test_push_out_moves_inside_points_to_their_clearance():
     body, faces = np.asarray(s.vertices), np.asarray(s.faces)
     q = SurfaceQuery(faces, body)
     d = np.array([[0.09, 0, 0], [0, 0.2, 0], [0, 0, -0.095]])
-    out, moved = redress.push_out(q, d, np.array([0.005, 0.005, np.nan]))
+    out, moved = push_out(q, d, np.array([0.005, 0.005, np.nan]))
     assert moved.tolist() == [True, False, False]
     dist = q.signed_distance(out)
     assert abs(dist[0] - 0.005) < 1e-9
@@ -156,7 +161,7 @@ def test_no_items_is_an_error(ref_male, heavy):
     ref = copy.copy(ref_male)
     ref.items = []
     with pytest.raises(InputError):
-        redress.dress(ref, heavy)
+        dress(ref, heavy)
 
 
 def test_far_item_warns(ref_male, heavy):
@@ -166,10 +171,10 @@ def test_far_item_warns(ref_male, heavy):
     ref.items = [eb.copy_with_points(eb.points + [0, 2.0, 0])]
     with warnings.catch_warnings(record=True) as w:
         warnings.simplefilter("always")
-        redress.dress(ref, heavy)
+        dress(ref, heavy)
     assert any("from the body" in str(x.message) for x in w)
     with pytest.raises(InputError):
-        redress.dress(ref, heavy, strict_far=True)
+        dress(ref, heavy, strict_far=True)
 
 
 def test_layers_keep_their_order_on_a_heavier_body(tmp_path):
@@ -178,7 +183,6 @@ def test_layers_keep_their_order_on_a_heavier_body(tmp_path):
     the undershirt, wherever they cover the same spot of the body."""
     from scipy.spatial import cKDTree
     from wearfit_usd.geometry.closest import SurfaceQuery
-    from wearfit_usd.dress.redress import dress
     from wearfit_usd.demo.samples import make_body, make_items, make_target
     ref = make_body("reference")
     ref.items = make_items(ref)
@@ -221,16 +225,16 @@ def test_untangle_unfolds_a_patch_under_push_out():
     bent[mid, 0] += 0.013   # past the next vertex: its triangles fold
     bent[mid, 2] = -0.003   # and inside the body
     target = np.full(len(grid), 0.002)
-    start, _ = redress.push_out(q, bent, target)
-    e = redress.edges(faces)
+    start, _ = push_out(q, bent, target)
+    e = edges(faces)
     grad = np.tile(np.eye(3), (len(grid), 1, 1))
     folded0, _ = U.bad_elements(grid, start, faces, e, grad)
     assert folded0.sum() >= 4
 
     def constrain(p, mask, before):
-        return redress.push_out(q, p, np.where(mask, target, np.nan))
+        return push_out(q, p, np.where(mask, target, np.nan))
 
-    out, touched, stats = U.untangle(grid, start, faces, e, redress.adjacency(faces, len(grid)), grad, constrain)
+    out, touched, stats = U.untangle(grid, start, faces, e, adjacency(faces, len(grid)), grad, constrain)
     folded, _ = U.bad_elements(grid, out, faces, e, grad)
     assert stats["folded_before"] == folded0.sum() and stats["folded_after"] == 0
     assert folded.sum() == 0
@@ -254,7 +258,7 @@ def test_relax_edges_brings_a_squeezed_patch_into_the_body_range():
     start = grid.copy()
     v = 5 * 12 + 5
     start[v, 0] += 0.007
-    e = redress.edges(faces)
+    e = edges(faces)
     lo = hi = np.ones(len(e))
     fixed = np.zeros(len(grid), bool)
     fixed[(grid[:, 0] == 0) | (grid[:, 1] == 0)] = True  # two sides of the rim
@@ -262,11 +266,11 @@ def test_relax_edges_brings_a_squeezed_patch_into_the_body_range():
     target = np.full(len(grid), 0.002)
 
     def constrain(p, mask, before):
-        return redress.push_out(q, p, np.where(mask, target, np.nan))
+        return push_out(q, p, np.where(mask, target, np.nan))
 
     n_exp = U.expected_normals(grid, faces, np.tile(np.eye(3), (len(grid), 1, 1)))
     out, touched, stats = U.relax_edges(grid, start, e, lambda idx: (lo[idx], hi[idx]),
-                                        redress.adjacency(faces, len(grid)), fixed,
+                                        adjacency(faces, len(grid)), fixed,
                                         constrain, faces, lambda p: U.folded_triangles(n_exp, p, faces))
     assert stats["relax_edges_before"] >= 3 and stats["relax_edges_after"] == 0
     assert not U.outside_range(grid, out, e, lo, hi, fixed).any()
@@ -288,7 +292,7 @@ def test_relax_edges_gives_back_the_parts_it_would_fold():
     start = grid.copy()
     a, b = 2 * n + 2, 10 * n + 10
     start[[a, b], 0] += 0.006
-    e = redress.edges(faces)
+    e = edges(faces)
     ones = np.ones(len(e))
     around_a = (faces == a).any(axis=1)
 
@@ -296,7 +300,7 @@ def test_relax_edges_gives_back_the_parts_it_would_fold():
         return around_a & (np.abs(p[a] - start[a]).max() > 0)
 
     out, touched, stats = U.relax_edges(grid, start, e, lambda idx: (ones[idx], ones[idx]),
-                                        redress.adjacency(faces, len(grid)), np.zeros(len(grid), bool),
+                                        adjacency(faces, len(grid)), np.zeros(len(grid), bool),
                                         lambda p, m, prev: (p, np.zeros(len(p), bool)), faces, folded)
     assert stats["relax_iterations"] >= 1 and stats["relax_reverted_vertices"] > 0
     near_a = np.abs(grid - grid[a]).max(axis=1) < 0.045
@@ -331,7 +335,7 @@ def test_worst_targets_untangled(ref_male, usd_dir):
     from wearfit_usd.dress.metrics import clearance_change, flip_and_stretch
     from wearfit_usd.io.usd import read_character
     tgt = read_character(usd_dir / "body_male_muscular_heavy.usdc")
-    res = redress.dress(ref_male, tgt)
+    res = dress(ref_male, tgt)
     assert "untangle_s" in res.timings
     qr = SurfaceQuery(ref_male.body.faces, ref_male.body.points)
     qt = SurfaceQuery(tgt.body.faces, tgt.body.points)
@@ -362,7 +366,7 @@ def test_posed_target_within_body_stretch(ref_male, usd_dir):
     last relax pass brings them back with every other figure kept."""
     from wearfit_usd.io.usd import read_character
     tgt = read_character(usd_dir / "body_male_muscular_posed.usdc")
-    res = redress.dress(ref_male, tgt)
+    res = dress(ref_male, tgt)
     _assert_within_body_stretch(ref_male, tgt, res)
 
 
@@ -400,7 +404,7 @@ def test_rigid_parts_keep_their_authored_insets(ref_male, usd_dir):
     from wearfit_usd.dress.metrics import dress_report
     from wearfit_usd.io.usd import read_character
     tgt = read_character(usd_dir / "body_male_cmu_rig.usdc")
-    res = redress.dress(ref_male, tgt)
+    res = dress(ref_male, tgt)
     rows = {r["item"]: r for r in dress_report(ref_male, tgt, res)}
     pl = res.plan
     assert set(pl.rigid_items) >= {"shoes01", "short02", "fedora01"}
@@ -424,7 +428,7 @@ def test_spread_corrections_on_a_flat_sheet():
     and by no more than the largest push, and the sheet beyond the rings
     does not move."""
     grid, faces = _grid(n=25, step=0.01)
-    nb = redress.adjacency(faces, len(grid))
+    nb = adjacency(faces, len(grid))
     centre = int(np.argmin(np.linalg.norm(grid - [0.12, 0.12, 0.0], axis=1)))
     side = int(np.argmin(np.linalg.norm(grid - [0.13, 0.12, 0.0], axis=1)))
     after = grid.copy()
@@ -432,13 +436,13 @@ def test_spread_corrections_on_a_flat_sheet():
     after[side, 2] += 0.001
     req = np.zeros(len(grid), bool)
     req[[centre, side]] = True
-    e = redress.edges(faces)
+    e = edges(faces)
 
     def ratio(p):
         return np.linalg.norm(p[e[:, 0]] - p[e[:, 1]], axis=1) / np.linalg.norm(grid[e[:, 0]] - grid[e[:, 1]], axis=1)
 
     assert ratio(after).max() > 1.4
-    out, spread = redress.spread_corrections(grid, grid, after, req, nb)
+    out, spread = spread_corrections(grid, grid, after, req, nb)
     r = ratio(out)
     assert 0.8 <= r.min() and r.max() <= 1.25, (r.min(), r.max())
     d = out - grid
@@ -447,12 +451,12 @@ def test_spread_corrections_on_a_flat_sheet():
     np.testing.assert_allclose(d[:, :2], 0.0, atol=1e-12)
     assert d[:, 2].min() >= -1e-12 and d[:, 2].max() <= 0.010 + 1e-12
     rings = np.abs(grid[:, :2] - grid[centre, :2]).max(axis=1) / 0.01  # grid rings of the diagonal mesh
-    assert np.all(d[rings > redress.SPREAD_RINGS + 1] == 0.0)
+    assert np.all(d[rings > SPREAD_RINGS + 1] == 0.0)
     assert spread[centre] == False and spread[side] and spread.sum() > 50
     # fixed vertices (a rigid part) are left alone
     fixed = np.zeros(len(grid), bool)
     fixed[side] = True
-    out2, spread2 = redress.spread_corrections(grid, grid, after, req, nb, fixed=fixed)
+    out2, spread2 = spread_corrections(grid, grid, after, req, nb, fixed=fixed)
     np.testing.assert_allclose(out2[side], after[side])
     assert not spread2[side]
 
@@ -476,23 +480,23 @@ def test_layer_gaps_keep_the_reference_relation_of_each_vertex():
     offsets = np.array([0, len(grid), 2 * len(grid)])
     items = [_mesh("outer", outer, faces), _mesh("inner", inner, faces)]
     clear = q.signed_distance(pts)
-    order = redress.layer_order(items, offsets, pts, clear)
-    assert [(i, j) for i, j, _ in order] == [(0, 1)] and order[0][2] == pytest.approx(redress.LAYER_MIN_GAP)
-    layers = redress.layer_gaps(q, pts, offsets, order, clear)
+    order = layer_order(items, offsets, pts, clear)
+    assert [(i, j) for i, j, _ in order] == [(0, 1)] and order[0][2] == pytest.approx(LAYER_MIN_GAP)
+    layers = layer_gaps(q, pts, offsets, order, clear)
     gap = layers[0][2]
     np.testing.assert_allclose(gap[dip], -0.001, atol=1e-9)
-    np.testing.assert_allclose(gap[~dip], redress.LAYER_MIN_GAP, atol=1e-9)
-    same, moved = redress.keep_layers(q, pts, offsets, layers)
+    np.testing.assert_allclose(gap[~dip], LAYER_MIN_GAP, atol=1e-9)
+    same, moved = keep_layers(q, pts, offsets, layers)
     assert not moved.any()
     # the item-level separation alone would lift the dip 6 mm over the inner sheet
-    _, moved_item_level = redress.keep_layers(q, pts, offsets, order)
+    _, moved_item_level = keep_layers(q, pts, offsets, order)
     assert moved_item_level[:len(grid)][dip].all()
     # target: the outer sheet 2 mm closer to the skin, the inner one where it was
     tgt = pts.copy()
     tgt[:len(grid), 2] -= 0.002
-    out, moved = redress.keep_layers(q, tgt, offsets, layers)
+    out, moved = keep_layers(q, tgt, offsets, layers)
     assert moved[:len(grid)].all() and not moved[len(grid):].any()
-    np.testing.assert_allclose(out[:len(grid)][~dip, 2], 0.004 + redress.LAYER_MIN_GAP, atol=1e-9)
+    np.testing.assert_allclose(out[:len(grid)][~dip, 2], 0.004 + LAYER_MIN_GAP, atol=1e-9)
     np.testing.assert_allclose(out[:len(grid)][dip, 2], 0.004 - 0.001, atol=1e-9)
 
 
@@ -516,18 +520,18 @@ def test_layer_pairs_are_fixed_on_the_reference():
     items = [_mesh("outer", outer, faces), _mesh("inner", np.concatenate([inner, lapel]),
                                                  np.concatenate([faces, faces + n]))]
     clear = q.signed_distance(pts)
-    order = redress.layer_order(items, offsets, pts, clear)
-    layers = redress.layer_gaps(q, pts, offsets, order, clear)
+    order = layer_order(items, offsets, pts, clear)
+    layers = layer_gaps(q, pts, offsets, order, clear)
     pair = layers[0][3]
     np.testing.assert_array_equal(pair, np.arange(n, 2 * n))   # each over its own inner vertex
-    assert not redress.keep_layers(q, pts, offsets, layers)[1].any()
+    assert not keep_layers(q, pts, offsets, layers)[1].any()
     tgt = pts.copy()
     tgt[n:2 * n] += [0.001, 0.0, 0.0]      # the inner sheet slid 1 mm
     tgt[2 * n:] = grid + [0.0, 0.0, 0.030]  # and the lapel over the outer sheet's very spot
-    out, moved = redress.keep_layers(q, tgt, offsets, layers)
+    out, moved = keep_layers(q, tgt, offsets, layers)
     assert not moved.any()
     searched = [(i, j, g) for i, j, g, _ in layers]  # the same gaps, the inner vertex searched again
-    out2, moved2 = redress.keep_layers(q, tgt, offsets, searched)
+    out2, moved2 = keep_layers(q, tgt, offsets, searched)
     assert moved2[:n].any() and out2[:n, 2].max() > 0.03
 
 
@@ -541,14 +545,14 @@ def test_dressing_the_reference_onto_its_own_shape_gives_it_back(ref_male, ref_f
     them outside)."""
     from wearfit_usd.io.usd import read_character
     tgt = read_character(usd_dir / "body_male_cmu_rig.usdc")
-    res = redress.dress(ref_male, tgt)
+    res = dress(ref_male, tgt)
     assert not res.moved.any()
     for a, b in zip(ref_male.items, res.items):
         np.testing.assert_allclose(b.points, a.points, atol=1e-9, err_msg=a.name)
-    res_f = redress.dress(ref_female, ref_female, body_points=ref_female.body.points)
+    res_f = dress(ref_female, ref_female, body_points=ref_female.body.points)
     for a, b in zip(ref_female.items, res_f.items):
         np.testing.assert_allclose(b.points, a.points, atol=1e-9, err_msg=a.name)
-    fixed = redress.dress(ref_male, tgt, push_inherited=True)
+    fixed = dress(ref_male, tgt, push_inherited=True)
     sl = fixed.plan.item_slices()[[m.name for m in ref_male.items].index("male_casualsuit01")]
     inset = fixed.plan.ref_clearance[sl] < -0.001
     q = SurfaceQuery(ref_male.body.faces, fixed.body_points)
@@ -569,17 +573,17 @@ def test_rigid_parts_that_do_not_fit_the_body_move_freely(ref_male, usd_dir):
     from wearfit_usd.dress.metrics import dress_report
     from wearfit_usd.io.usd import read_character
     tgt = read_character(usd_dir / "body_male_muscular_heavy.usdc")
-    pl = redress.plan(ref_male)
+    pl = plan(ref_male)
     assert {"short02", "shoes01", "fedora01"} <= set(pl.rigid_items)
-    body = redress.fitted_body_points(ref_male, tgt)
+    body = fitted_body_points(ref_male, tgt)
     q = SurfaceQuery(ref_male.body.faces, body)
-    kept, released = redress.release_misfits(pl, body, q)
+    kept, released = release_misfits(pl, body, q)
     assert released == ["shoes01", "short02"]
     assert set(kept.rigid_items) == set(pl.rigid_items) - {"short02", "shoes01"}
     assert len(kept.rigid_groups) == len(pl.rigid_groups) - 3 and kept.rigid_parts is not None  # 2 shoes, hair
     # by the fraction rule alone (5 %) the shoes would stay
-    assert redress.release_misfits(pl, body, q, max_depth=1.0)[1] == ["short02"]
-    res = redress.dress(ref_male, tgt, body_points=body)
+    assert release_misfits(pl, body, q, max_depth=1.0)[1] == ["short02"]
+    res = dress(ref_male, tgt, body_points=body)
     assert res.plan.rigid_items == kept.rigid_items
     rows = {r["item"]: r for r in dress_report(ref_male, tgt, res)}
     for name in ("short02", "shoes01"):
@@ -588,11 +592,11 @@ def test_rigid_parts_that_do_not_fit_the_body_move_freely(ref_male, usd_dir):
         assert row["new_pen_pct"] <= 0.5 and row["clear_med_mm"] <= 0.5 and row["clear_p95_mm"] <= 2.0, row
     # released parts keep their authored insets (the insoles inside the soles)
     # also under --fix-reference-penetrations, which pushes the suit's out
-    fixed = redress.dress(ref_male, tgt, body_points=body, push_inherited=True)
+    fixed = dress(ref_male, tgt, body_points=body, push_inherited=True)
     sl = fixed.plan.item_slices()[[m.name for m in ref_male.items].index("shoes01")]
     inset = fixed.plan.ref_clearance[sl] < -0.001
     assert inset.sum() > 20
     assert q.signed_distance(fixed.points[sl][inset]).max() < 0.0
     # on the reference's own shape nothing is released
-    assert redress.release_misfits(pl, ref_male.body.points,
+    assert release_misfits(pl, ref_male.body.points,
                                    SurfaceQuery(ref_male.body.faces, ref_male.body.points))[1] == []

@@ -1,14 +1,14 @@
 """Per-frame evaluation of a dress plan: item points from body points, built
 once and called every animation frame.
 
-:func:`redress.apply` with ``penetration=False`` evaluates a plan in three
+:func:`dress.apply.apply` with ``penetration=False`` evaluates a plan in three
 steps: the binding (one sparse product), the rigid parts (one similarity
 per group) and the loose-part smoothing (one sparse solve). It returns the
 binding's free result too, and allocates as it goes. An animation needs only
 the final points, frame after frame: :class:`FrameEvaluator` skips the
 binding rows the rigid parts overwrite, writes every step into one output
 array and runs the gathers and scatters as compiled loops (numba; the numpy
-path is ``redress.apply``'s). Same numbers as ``redress.apply`` (to rounding).
+path is ``dress.apply.apply``'s). Same numbers as ``dress.apply.apply`` (to rounding).
 
 Arrays are numpy; lengths in the units of the points (metres internally).
 """
@@ -16,13 +16,14 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..dress.apply import apply
 from ..kernels import compiled as kernels
 
 
 class FrameEvaluator:
     """``FrameEvaluator(plan)(body_points (N, 3)) -> item points (M, 3)``:
     the plan's binding, rigid parts and loose-part smoothing (see
-    :func:`redress.apply`), for body points of the plan's body topology."""
+    :func:`dress.apply.apply`), for body points of the plan's body topology."""
 
     def __init__(self, plan):
         self.plan = plan
@@ -39,12 +40,12 @@ class FrameEvaluator:
         self._used_faces = b._used_faces
         self._buf = np.zeros((self._matrix.shape[1], 3))
         sm = plan.smoother
-        self._smooth = sm is not None and getattr(sm, "_solver", None) is not None
+        self._smooth = sm.active
         if self._smooth:
             ref = np.asarray(plan.ref_points, dtype=np.float64)
             self._ref_free = np.ascontiguousarray(ref[sm.free])
             self._ref_boundary = np.ascontiguousarray(ref[sm.boundary])
-            lap = sm._lap_ub.tocsr()
+            lap = sm.boundary_coupling.tocsr()
             lap.sort_indices()
             self._lap = lap
             self._rhs = np.empty((len(sm.free), 3))
@@ -56,7 +57,6 @@ class FrameEvaluator:
         plan = self.plan
         p = np.ascontiguousarray(body_points, dtype=np.float64)
         if not self.compiled:  # pragma: no cover - numpy path
-            from ..dress.redress import apply
             return apply(plan, p, None, penetration=False)[0]
         out = np.empty((self.n_items, 3))
         m = self._matrix

@@ -7,9 +7,9 @@ Pipeline (:func:`animate`):
 2. skin the target body per frame (LBS, :mod:`skinning`);
 3. dress frame 0: pose the reference body into frame 0's pose through its own
    rig, fit it onto the target at frame 0 (:mod:`body_fit`) and redress the
-   items (:mod:`redress`);
+   items (:mod:`dress.apply`);
 4. bind the dressed items to the target body at frame 0 (the region-aware
-   plan of :mod:`redress`) and re-evaluate the binding every frame (one
+   plan of :mod:`dress.plan`) and re-evaluate the binding every frame (one
    sparse product, plus rigid parts and loose-part smoothing), with a
    temporally coherent penetration pass where needed
    (:class:`penetration_guard.PenetrationGuard`);
@@ -27,7 +27,13 @@ import numpy as np
 from ..model import Character
 from .frame_eval import FrameEvaluator
 from .penetration_guard import PenetrationGuard
+from .skin_transfer import transfer_weights
+from ..dress.apply import apply as apply_plan, dress
+from ..dress.plan import plan as plan_dress
+from ..errors import USDInputError
+from ..io.usd_shot import ShotWriter
 from ..progress import info, progress
+from ..motion.retarget import retarget
 from ..motion.skinning import Skinner, skin_points, skinning_matrices
 
 
@@ -45,7 +51,7 @@ class AnimateOptions:
     penetration_margin: float = 0.001  # metres
     dress_pose: str = "first"          # "first": dress in frame 0's pose; "bind": on the bind pose
     measure_every: int = 0             # exact penetration statistics every N frames (0 = off)
-    untangle: bool = False             # dressing's untangle pass on frame 0 (see redress.apply)
+    untangle: bool = False             # dressing's untangle pass on frame 0 (see dress.apply.apply)
 
 
 @dataclass
@@ -73,20 +79,14 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
             ) -> AnimateReport:
     """Dress ``target`` with ``reference``'s items, animate it with ``motion``
     (a :class:`bvh.BVHMotion`) and write the shot to ``out_path``."""
-    from ..motion.retarget import retarget
-    from ..io.usd_shot import ShotWriter
-
     opt = options or AnimateOptions()
     rep = AnimateReport()
     t_all = time.perf_counter()
     if target.skeleton is None:
-        from ..errors import USDInputError
         raise USDInputError(target.source, "the target has no skeleton: cannot animate it")
     if reference.skeleton is None:
-        from ..errors import USDInputError
         raise USDInputError(reference.source, "the reference has no skeleton")
     if not reference.items:
-        from ..errors import USDInputError
         raise USDInputError(reference.source, "the reference holds no wearable items (no Mesh besides the body)")
 
     # 1. retarget ------------------------------------------------------------
@@ -106,7 +106,6 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
     t0 = time.perf_counter()
     body_skinner = Skinner(body.points, body.joint_indices, body.joint_weights, target.skeleton.n_joints)
     body0 = body_skinner(skin_mats[0])
-    from ..dress.redress import apply as apply_plan, plan as plan_dress
     # one plan, on the reference in its rest pose: regions and bound triangles
     # are best found with the limbs apart (a posed body, hands hanging beside
     # a skirt, would hand skirt parts to the arms); the posed dressing rebinds it
@@ -144,7 +143,6 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
     offsets = np.concatenate([[0], np.cumsum(sizes)])
     all_base = np.concatenate([m.points for m in items])
     if opt.mode == "lbs":
-        from .skin_transfer import transfer_weights
         ji, jw = transfer_weights(body.points, body.faces, body.joint_indices, body.joint_weights,
                                   all_base, target.skeleton.n_joints)
         evaluator = _LBSEvaluator(all_base, ji, jw, skin_mats)
@@ -161,8 +159,7 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
             frame_plan = dressed.plan.rebound(base_body, all_base)
         else:
             base = replace(target, body=body.copy_with_points(base_body), skeleton=base_skeleton, items=items)
-            frame_plan = plan_dress(base, k=opt.k, bind_labels=ref_plan.bind_labels,
-                                    skirt_items=ref_plan.skirt_items)
+            frame_plan = plan_dress(base, k=opt.k, regions=ref_plan.regions)
         frame_eval = FrameEvaluator(frame_plan)
         evaluator = lambda f, body_f: frame_eval(body_f)  # noqa: E731
         items_for_skin = []
@@ -223,7 +220,6 @@ class _LBSEvaluator:
 
 def dress_items(reference: Character, target: Character, k: int = 5, **plan_kw):
     """Fit the reference body onto the target body and redress the items
-    (:func:`redress.dress`). Returns its :class:`redress.DressResult` (items
+    (:func:`dress.apply.dress`). Returns its :class:`dress.apply.DressResult` (items
     on the target in internal space, plan, timings)."""
-    from ..dress.redress import dress
     return dress(reference, target, k=k, **plan_kw)

@@ -40,7 +40,7 @@ def register(sub, common):
 
 def run(args) -> int:
     from ..progress import info
-    from ..dress.redress import dress
+    from ..dress.apply import dress
     from ..io.usd import read_character, write_character
 
     ref_path, tgt_path, out = Path(args.reference), Path(args.target), Path(args.output)
@@ -80,7 +80,7 @@ def run(args) -> int:
                  f"{r['flipped_pct']:.2f} %, edges beyond the body's stretch {r['overstretch_pct']:.2f} %")
     info(f"wrote {out}: {len(res.items)} items ({res.points.shape[0]} vertices) on "
          f"{tgt_path.name}; rigid: {', '.join(res.plan.rigid_items) or '-'}; "
-         f"skirt-like: {', '.join(res.plan.skirt_items) or '-'}; "
+         f"skirt-like: {', '.join(res.plan.regions.skirt_items) or '-'}; "
          f"pushed out {int(res.moved.sum())} vertices; bind {t['bind_s']:.3f} s, "
          f"evaluate {t['evaluate_s'] * 1000:.1f} ms, penetration {t['penetration_s']:.3f} s"
          + (f", untangle {t['untangle_s']:.3f} s" if "untangle_s" in t else ""))

@@ -20,7 +20,7 @@ import numpy as np
 
 from ..animate.try_on import AnimateOptions, animate
 from ..dress.metrics import dress_report
-from ..dress.redress import dress
+from ..dress.apply import dress
 from ..io.bvh import read_bvh
 from ..io.usd import read_character, write_character
 from ..io.usd_validate import validate_stage

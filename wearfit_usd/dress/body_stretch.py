@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..geometry.closest import VertexNormals
+
 
 def offset_factor(ref_body, fit_body, body_faces, tri, bary, clearance, e, edge_len):
     """(E,) growth of item edges (E, 2) (reference lengths ``edge_len``)
@@ -28,7 +30,6 @@ def offset_factor(ref_body, fit_body, body_faces, tri, bary, clearance, e, edge_
     edge apart (an edge standing off the skin, e.g. along a hair strand) or
     where an offset exceeds half the curvature radius of a concave part
     (``1 + c k <= 0.5``: the offset surface folds there)."""
-    from ..geometry.closest import VertexNormals
     vn = VertexNormals(body_faces, len(ref_body))
     c = np.maximum(0.5 * (clearance[e[:, 0]] + clearance[e[:, 1]]), 0.0)
     used, e = np.unique(e, return_inverse=True)  # only the edges' own vertices

@@ -7,8 +7,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import untangle as U
 from .body_stretch import stretch_range
 from ..geometry.closest import SurfaceQuery
+from ..geometry.mesh import edges, nondegenerate, similarity_fit
 
 
 def _frames(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -38,14 +40,14 @@ def flip_and_stretch(ref_pts: np.ndarray, new_pts: np.ndarray, faces: np.ndarray
     A triangle is flipped when its normal, turned by its body triangle's local
     rotation, opposes the new normal; an edge is over-stretched when its length
     ratio leaves [0.8, 1.25] x the range of its body triangle's edge ratios.
+    Zero-area reference triangles (:func:`geometry.mesh.nondegenerate`) have
+    no normal and are left out of the flipped percentage.
     """
-    from ..geometry.mesh import edges
     fr, ft = _frames(ref_body, body_faces), _frames(fit_body, body_faces)
     t = tri0[faces[:, 0]]
     rot = np.einsum("tji,tjk->tik", fr[t], ft[t])  # row-vector rotation ref -> target
     nr, nt = _unit_normals(ref_pts, faces), _unit_normals(new_pts, faces)
-    ok = np.linalg.norm(np.cross(ref_pts[faces[:, 1]] - ref_pts[faces[:, 0]],
-                                 ref_pts[faces[:, 2]] - ref_pts[faces[:, 0]]), axis=1) > 1e-12
+    ok = nondegenerate(ref_pts, faces)
     flipped = (np.einsum("ti,tij,tj->t", nr, rot, nt) < 0) & ok
     e = edges(faces)
     lr = np.linalg.norm(ref_pts[e[:, 0]] - ref_pts[e[:, 1]], axis=1)
@@ -120,7 +122,7 @@ def shape_change(ref_pts: np.ndarray, new_pts: np.ndarray, faces: np.ndarray, tr
 
     Rigid parts (``rigid_groups``: list of vertex index arrays (P,) of this
     item, each moved as a whole by one similarity transform, see
-    :func:`redress.plan`): an edge with both endpoints in one group is not
+    :func:`plan.plan`): an edge with both endpoints in one group is not
     judged by the body's stretch but by the rigid part's own criterion: its
     length ratio must lie within [0.8, 1.25] x the uniform scale ``s`` of the
     best-fit similarity (Umeyama) of the group's reference points onto its
@@ -148,10 +150,8 @@ def shape_change(ref_pts: np.ndarray, new_pts: np.ndarray, faces: np.ndarray, tr
     overstretch_rigid_pct, rigid_residual_mm, and the indices ``flipped``
     (triangles), ``overstretched`` (free edges beyond the body's range) and
     ``overstretched_rigid`` (rigid edges beyond their scale), both rows of
-    :func:`redress.edges`.
+    :func:`geometry.mesh.edges`.
     """
-    from . import untangle as U
-    from ..geometry.mesh import edges
     ref_pts = np.asarray(ref_pts, dtype=np.float64)
     new_pts = np.asarray(new_pts, dtype=np.float64)
     tri0 = triangles[:, 0] if tri0 is None else tri0
@@ -203,7 +203,6 @@ def rigid_edge_check(ref_pts: np.ndarray, new_pts: np.ndarray, e: np.ndarray, ra
     "over_pct": % of the rigid edges, "residual_mm": largest distance (mm)
     of a group vertex from the best-fit similarity image of its reference
     position}."""
-    from ..geometry.mesh import similarity_fit
     group = np.full(len(ref_pts), -1)
     scale = np.ones(len(rigid_groups or []))
     residual = 0.0
@@ -234,14 +233,14 @@ def clearance_change(ref_clearance: np.ndarray, new_clearance: np.ndarray, insid
 
 
 def item_rigid_groups(plan, sl: slice) -> list:
-    """The rigid groups of a :class:`redress.DressPlan` that lie in the item
+    """The rigid groups of a :class:`plan.DressPlan` that lie in the item
     of rows ``sl``, as vertex indices of that item."""
     return [np.asarray(gv) - sl.start for gv, _, _ in plan.rigid_groups
             if len(gv) and sl.start <= int(np.min(gv)) and int(np.max(gv)) < sl.stop]
 
 
 def dress_report(reference, target, result) -> list[dict]:
-    """Per-item quality of a :class:`redress.DressResult` (reference and target
+    """Per-item quality of a :class:`apply.DressResult` (reference and target
     are :class:`Character`): new penetration %, clearance change median/p95 mm,
     flipped triangles % and over-stretched edges % (:func:`shape_change`: main
     and strict figures, degenerate reference triangles left out and counted)."""

@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
 
 from ..geometry.sparse_solve import SPDSolver
 
@@ -127,7 +128,6 @@ def lift_folds(ref_pts: np.ndarray, before: np.ndarray, after: np.ndarray, faces
     rim keeps the per-vertex corrections.
     Returns (points (M, 3), vertices moved by a lift (M,) bool).
     """
-    from scipy.sparse.csgraph import connected_components
     out = after.copy()
     lifted = np.zeros(len(after), dtype=bool)
     near = np.zeros(len(after), dtype=bool)  # corners of triangles touching changed vertices
@@ -447,7 +447,6 @@ def relax_edges(ref_pts: np.ndarray, pts: np.ndarray, edges: np.ndarray, limits,
     new_folds = folded(pts) & ~folded(start)
     touched = region.copy()
     if new_folds.any():
-        from scipy.sparse.csgraph import connected_components
         keep = sp.diags(region.astype(np.float64))
         part = connected_components(keep @ neighbours @ keep, directed=False)[1]
         back = np.isin(part, np.unique(part[faces[new_folds].ravel()])) & region

@@ -1,0 +1,559 @@
+"""The dressing plan: everything topology-dependent about a reference's items,
+built once on the reference body (:func:`plan`, :class:`DressPlan`).
+
+1. segment the reference body by skin weights (:mod:`regions`) and give each
+   item vertex the region of its nearest body triangle; item parts that join
+   the two legs directly (skirts, dresses) are bound to the torso instead, so
+   no vertex is pulled by both legs and the skirt cannot tear between them
+   (:func:`item_labels`);
+2. bind every item vertex to its ``k`` nearest reference triangles of its
+   region (:func:`binding.bind`, one sparse matrix for all items);
+3. find the small stiff parts (shoes, hat, glasses, watch) that follow a
+   best-fit similarity transform of their bound body patch instead, the
+   loose parts whose displacement is smoothed (:mod:`corrections`) and the
+   layer order between items (:mod:`layers`).
+
+:mod:`apply` evaluates a plan on a fitted body.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, replace
+from typing import NamedTuple
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+from . import regions as R
+from .binding import Binding, bind, rebind
+from .corrections import LooseSmoother, looseness
+from .layers import layer_gaps, layer_order
+from .rigid_parts import RigidParts
+from ..errors import GeometryError, InputError
+from ..geometry.closest import SurfaceQuery
+from ..geometry.mesh import adjacency, components, edges, nondegenerate
+from ..model import Character, Mesh
+from ..progress import warn
+
+FAR_FROM_BODY = 0.5  # m: items farther than this from the body are suspicious
+DEGENERATE_BODY_REL = 1e-10  # body triangles below this x the median doubled area are not bound to
+
+
+def group_mask(groups: list, m: int) -> np.ndarray:
+    """The vertices of rigid groups.
+
+    Parameters
+    ----------
+    groups : list
+        [(vertex indices, ...)].
+    m : int
+        Number of vertices.
+
+    Returns
+    -------
+    (m,) bool array
+    """
+    mask = np.zeros(m, dtype=bool)
+    for gv, *_ in groups:
+        mask[gv] = True
+    return mask
+
+
+@dataclass(frozen=True)
+class ItemRegions:
+    """Body regions (:mod:`regions`) of a plan: per item vertex, body
+    triangle and body vertex, and the items treated as skirts."""
+    vertex: np.ndarray      # (M,) region each item vertex is bound to (skirt parts: TORSO)
+    bind: np.ndarray        # (M,) the regions used for binding (skirt parts: HIPS); pass to plan(regions=...)
+    triangle: np.ndarray    # (T,) region of each body triangle
+    body: np.ndarray        # (N,) region of each body vertex
+    skirt_items: list       # names of the items bound as skirts (from the hips)
+
+
+@dataclass(frozen=True)
+class StackedMesh:
+    """The items' meshes stacked into one (vertex indices into the stacked points)."""
+    faces: np.ndarray            # (F, 3) triangles of all items
+    edges: np.ndarray            # (E, 2) their unique edges
+    neighbours: sp.csr_matrix    # (M, M) vertex adjacency (block diagonal, one block per item)
+
+
+class Footprint(NamedTuple):
+    """The closest reference skin point of each item vertex."""
+    triangle: np.ndarray    # (M,) body triangle
+    bary: np.ndarray        # (M, 3) barycentrics in it
+
+
+@dataclass(frozen=True)
+class AutoRigid:
+    """Which item parts :func:`plan` moves rigidly with ``rigid="auto"``:
+    small (bounding-box diagonal <= max_size m), not skin-tight (median
+    clearance >= min_clearance m) parts of at most max_vertices vertices
+    lying in one body region."""
+    max_size: float = 0.4
+    min_clearance: float = 0.004
+    max_vertices: int = 4000
+
+
+@dataclass
+class DressPlan:
+    """Everything topology-dependent, built once on the reference body.
+
+    items: the reference items, their vertices stacked in item order (M in all);
+    binding: one :class:`Binding` for all item vertices;
+    offsets: (n_items + 1,) start of each item's rows;
+    ref_points: (M, 3) the stacked item points on the reference;
+    ref_body: (N, 3) the reference body points;
+    ref_clearance: (M,) signed clearance on the reference body (m), kept on targets;
+    ref_foot: the closest reference skin point of each item vertex;
+    body_query: a :class:`SurfaceQuery` on the reference body (its topology serves every target);
+    regions: body regions of the item vertices, body triangles and vertices;
+    mesh: the items' stacked triangles, edges and adjacency;
+    rigid_groups: list of (vertex indices (P,), body vertex indices (Q,),
+        body vertex weights (Q,)) moved by one similarity transform;
+    rigid_items: names of the items with rigid groups;
+    insets_kept: (M,) bool, vertices that keep authored insets (the plan's
+        rigid groups, also when :func:`repair.release_misfits` frees them);
+    looseness: (M,) 0..1, how much each vertex's displacement is smoothed
+        over the item mesh: 0 for tight parts (clearance kept exactly), 1 for
+        parts hanging far from the body;
+    smoother: the :class:`LooseSmoother` of that weight;
+    layers: [(outer item, inner item, separation (n_outer,) m, inner vertex
+        (n_outer,))] (:func:`layers.layer_gaps`);
+    timings: seconds per planning step;
+    rigid_parts: the rigid groups' per-body evaluator (None without groups).
+    """
+    items: list[Mesh]
+    binding: Binding
+    offsets: np.ndarray
+    ref_points: np.ndarray
+    ref_body: np.ndarray
+    ref_clearance: np.ndarray
+    ref_foot: Footprint
+    body_query: SurfaceQuery = field(repr=False, compare=False)
+    regions: ItemRegions
+    mesh: StackedMesh
+    rigid_groups: list
+    rigid_items: list
+    insets_kept: np.ndarray
+    looseness: np.ndarray
+    smoother: LooseSmoother
+    layers: list
+    timings: dict = field(default_factory=dict)
+    rigid_parts: RigidParts | None = field(init=False, default=None)
+
+    def __post_init__(self):
+        if self.rigid_groups:
+            self.rigid_parts = RigidParts(self.rigid_groups, self.ref_body, self.ref_points)
+
+    def rigid_mask(self) -> np.ndarray:
+        """(M,) bool: item vertices of the rigid groups."""
+        return group_mask(self.rigid_groups, len(self.ref_points))
+
+    def item_slices(self) -> list[slice]:
+        """The rows of each item in the stacked arrays.
+
+        Returns
+        -------
+        list of slice
+        """
+        return [slice(int(a), int(b)) for a, b in zip(self.offsets[:-1], self.offsets[1:])]
+
+    def rebound(self, body_points: np.ndarray, item_points: np.ndarray) -> DressPlan:
+        """This plan with the items bound where they are now, item_points
+        (M, 3), on body_points (N, 3) of the same body topology: the same
+        triangles and weights (:func:`binding.rebind`), regions, clearances
+        to keep, rigid groups, smoother and layers. Milliseconds instead of
+        a new :func:`plan`; evaluating the result on ``body_points`` gives
+        ``item_points`` back."""
+        pts = np.ascontiguousarray(item_points, dtype=np.float64)
+        body = np.ascontiguousarray(body_points, dtype=np.float64)
+        items = [m.copy_with_points(pts[sl]) for m, sl in zip(self.items, self.item_slices())]
+        return replace(self, items=items, binding=rebind(self.binding, body, pts), ref_points=pts,
+                       ref_body=body, timings={})
+
+
+def item_labels(ref_body: Mesh, body_labels: np.ndarray, tri_labels: np.ndarray, items: list[Mesh], points: np.ndarray,
+                offsets: np.ndarray, centroid_tree: cKDTree):
+    """Region per item vertex (of its nearest triangle), with skirt-like item
+    parts (item edges joining a left-leg vertex to a right-leg vertex) moved
+    to the torso. Returns (labels (M,), names of items treated as skirts)."""
+    _, near = centroid_tree.query(points, k=1)
+    labels = tri_labels[near].copy()
+    torso = body_labels == R.TORSO
+    crotch_y = float(ref_body.points[torso, 1].min()) if torso.any() else -np.inf
+    skirts = []
+    for item, a, b in zip(items, offsets[:-1], offsets[1:]):
+        lab = labels[a:b]
+        e = edges(item.faces)
+        la, lb = lab[e[:, 0]], lab[e[:, 1]]
+        cross = ((la == R.LEFT_LEG) & (lb == R.RIGHT_LEG)) | ((la == R.RIGHT_LEG) & (lb == R.LEFT_LEG))
+        if not cross.any():
+            continue
+        comp = components(item.faces, item.n_points)
+        # trousers touch left and right leg only at the crotch; a skirt joins
+        # them all the way down to its hem: count joining edges clearly below
+        # the crotch (the lowest torso-region body vertex)
+        ymid = 0.5 * (points[a + e[cross, 0], 1] + points[a + e[cross, 1], 1])
+        low = ymid < crotch_y - 0.08
+        n_cross = np.bincount(comp[e[cross, 0]][low], minlength=comp.max() + 1)
+        bridged = np.flatnonzero(n_cross >= 3)
+        if len(bridged) == 0:
+            continue
+        sel = np.isin(comp, bridged) & ((lab == R.LEFT_LEG) | (lab == R.RIGHT_LEG) | (lab == R.TORSO))
+        lab[sel] = R.HIPS
+        labels[a:b] = lab
+        skirts.append(item.name)
+    return labels, skirts
+
+
+def _auto_rigid(item: Mesh, ref_clear: np.ndarray, lab: np.ndarray, comp: np.ndarray,
+                max_size: float, min_clearance: float, max_vertices: int):
+    """Vertex groups (lists of local indices) of an item that should move
+    rigidly: small (bounding-box diagonal <= max_size), not skin-tight
+    (median clearance >= min_clearance) parts lying in one body region."""
+    groups = []
+    for region in np.unique(lab):
+        sel = lab == region
+        # whole components only: a component split across regions stays free
+        comps = np.unique(comp[sel])
+        whole = [c for c in comps if np.all(lab[comp == c] == region)]
+        if not whole:
+            continue
+        v = np.flatnonzero(np.isin(comp, whole))
+        pts = item.points[v]
+        size = float(np.linalg.norm(pts.max(0) - pts.min(0)))
+        if (len(v) <= max_vertices and size <= max_size
+                and float(np.median(ref_clear[v])) >= min_clearance):
+            groups.append(v)
+    return groups
+
+
+def stack_items(ref: Character):
+    """The items of ``ref`` stacked in item order.
+
+    Parameters
+    ----------
+    ref : Character
+
+    Returns
+    -------
+    items : list of Mesh
+    offsets : (n_items + 1,) int array
+        Start of each item's rows.
+    points : (M, 3) float array
+    """
+    items = list(ref.items)
+    if not items:
+        raise InputError(ref.source, "the reference holds no wearable items (no Mesh besides the body)")
+    offsets = np.concatenate([[0], np.cumsum([m.n_points for m in items])])
+    return items, offsets, np.concatenate([m.points for m in items])
+
+
+def degenerate_triangles(ref: Character) -> np.ndarray:
+    """The zero-area body triangles of ``ref`` (doubled area at most
+    ``DEGENERATE_BODY_REL`` x the median, :func:`geometry.mesh.nondegenerate`),
+    which binding leaves out, with a warning; an error if every triangle is.
+
+    Parameters
+    ----------
+    ref : Character
+
+    Returns
+    -------
+    (T,) bool array
+    """
+    degenerate = ~nondegenerate(ref.body.points, ref.body.faces, rel=DEGENERATE_BODY_REL)
+    if degenerate.all():
+        raise GeometryError(ref.source, "every body triangle is degenerate (zero area)")
+    if degenerate.any():
+        warn(f"{ref.source}: {int(degenerate.sum())} degenerate body triangles are not used for binding")
+    return degenerate
+
+
+class BodyRegions(NamedTuple):
+    """Regions of the reference body from its skin weights."""
+    vertex: np.ndarray      # (N,) region of each body vertex (all TORSO without regions)
+    triangle: np.ndarray    # (T,) region of each body triangle
+    leg_share: np.ndarray   # (N,) skin weight of the two legs
+
+
+def body_regions(ref: Character, use_regions: bool) -> BodyRegions:
+    """The reference body segmented by skin weights (:mod:`regions`), or one
+    region if ``use_regions`` is off or the body has no skin weights.
+
+    Parameters
+    ----------
+    ref : Character
+    use_regions : bool
+
+    Returns
+    -------
+    BodyRegions
+        vertex (N,), triangle (T,) regions and leg_share (N,).
+    """
+    body = ref.body
+    if use_regions and ref.skeleton is not None and body.joint_indices is not None:
+        shares = R.region_shares(body, ref.skeleton)
+        body_labels = np.argmax(shares, axis=1)
+        leg_share = shares[:, R.LEFT_LEG] + shares[:, R.RIGHT_LEG]
+    else:
+        body_labels = np.zeros(body.n_points, dtype=np.int64)
+        leg_share = np.zeros(body.n_points)
+    return BodyRegions(body_labels, R.triangle_regions(body.faces, body_labels), leg_share)
+
+
+def bind_items(body: Mesh, points: np.ndarray, labels: np.ndarray, regions: BodyRegions,
+               degenerate: np.ndarray, k: int) -> Binding:
+    """Bind item points to the ``k`` nearest non-degenerate body triangles of
+    their region.
+
+    Skirt parts hang from the hips: they may only use torso triangles that the
+    legs do not move (no leg skin weight), so spreading the legs neither tears
+    nor swings them; the push-out pass then keeps the legs inside. Torso
+    vertices may still use hip triangles.
+
+    Parameters
+    ----------
+    body : Mesh
+        The reference body.
+    points : (M, 3) float array
+    labels : (M,) int array
+        Region of each item vertex (skirt parts: HIPS).
+    regions : BodyRegions
+    degenerate : (T,) bool array
+    k : int
+
+    Returns
+    -------
+    Binding
+    """
+    tri_labels = regions.triangle
+    hips = (tri_labels == R.TORSO) & (regions.leg_share[body.faces].max(axis=1) < 0.02)
+    mask_labels = np.where(hips & np.isin(R.HIPS, labels), R.HIPS, tri_labels)
+    mask_labels = np.where(degenerate, -1, mask_labels)
+    allowed = np.zeros((len(points), R.N_REGIONS + 1), dtype=bool)
+    allowed[np.arange(len(points)), np.where(labels == R.HIPS, R.HIPS, labels)] = True
+    allowed[:, R.HIPS] |= labels == R.TORSO
+    return bind(body.points, body.faces, points, k=k, candidate_mask=(mask_labels, allowed))
+
+
+def reference_clearance(ref: Character, query: SurfaceQuery, items: list[Mesh], offsets: np.ndarray,
+                        points: np.ndarray, given: np.ndarray | None, far: float, strict_far: bool):
+    """The clearance each item vertex keeps: the true signed distance of the item
+    points to the reference body (the offset along a bound triangle's plane
+    extrapolates: on a bent foot a rigid shoe's plane offsets reach tens of
+    centimetres), or the ``given`` one. Items farther than ``far`` from the
+    body are warned about (an error with ``strict_far``).
+
+    Parameters
+    ----------
+    ref : Character
+    query : SurfaceQuery
+        On the reference body.
+    items : list of Mesh
+    offsets : (n_items + 1,) int array
+    points : (M, 3) float array
+    given : (M,) float array or None
+    far : float
+        m.
+    strict_far : bool
+
+    Returns
+    -------
+    clearance : (M,) float array
+    foot : dict
+        :meth:`SurfaceQuery.closest` of ``points``.
+    """
+    foot = query.closest(points)
+    if given is None:
+        clearance = foot["distance"]
+    else:
+        if len(given) != len(points):
+            raise ValueError(f"ref_clearance has {len(given)} entries for {len(points)} item vertices")
+        clearance = np.asarray(given, dtype=np.float64)
+    far_mask = clearance > far
+    if far_mask.any():
+        names = [m.name for m, a, b in zip(items, offsets[:-1], offsets[1:]) if far_mask[a:b].any()]
+        msg = (f"{int(far_mask.sum())} item vertices are more than {far} m from the body "
+               f"(items: {', '.join(names)}): they are carried along rigidly with distant body parts")
+        if strict_far:
+            raise GeometryError(ref.source, msg)
+        warn(f"{ref.source}: {msg}")
+    return clearance, foot
+
+
+def stacked_mesh(items: list[Mesh], offsets: np.ndarray) -> StackedMesh:
+    """The items' triangles, edges and adjacency in stacked vertex indices.
+
+    Parameters
+    ----------
+    items : list of Mesh
+    offsets : (n_items + 1,) int array
+
+    Returns
+    -------
+    StackedMesh
+    """
+    faces = np.concatenate([m.faces + a for m, a in zip(items, offsets[:-1])]).astype(np.int64)
+    neighbours = sp.block_diag([adjacency(m.faces, m.n_points) for m in items], format="csr")
+    return StackedMesh(faces=faces, edges=edges(faces), neighbours=neighbours)
+
+
+def find_rigid_groups(items: list[Mesh], offsets: np.ndarray, labels: np.ndarray, clearance: np.ndarray,
+                      binding: Binding, body: Mesh, rigid, auto: AutoRigid):
+    """The item parts moved as a whole, each with its bound body patch: the body
+    vertices of the triangles its vertices use, weighted by how much they are
+    used.
+
+    Parameters
+    ----------
+    items : list of Mesh
+    offsets : (n_items + 1,) int array
+    labels : (M,) int array
+        Body region of each item vertex.
+    clearance : (M,) float array
+    binding : Binding
+    body : Mesh
+        The reference body.
+    rigid : "auto", "none", None or list of str
+        "auto": the small stiff parts of ``auto``; a list: those items, one
+        group per body region; "none"/None: no group.
+    auto : AutoRigid
+
+    Returns
+    -------
+    groups : list
+        [(stacked vertex indices (P,), body vertices (Q,), their weights (Q,))].
+    names : list of str
+        The items with groups.
+    """
+    groups, names = [], []
+    if rigid == "none" or rigid is None:
+        return groups, names
+    for item, a, b in zip(items, offsets[:-1], offsets[1:]):
+        lab = labels[a:b]
+        if rigid == "auto":
+            comp = connected_components(adjacency(item.faces, item.n_points), directed=False)[1]
+            local = _auto_rigid(item, clearance[a:b], lab, comp, auto.max_size, auto.min_clearance,
+                                auto.max_vertices)
+        elif item.name in rigid:
+            local = [np.flatnonzero(lab == r) for r in np.unique(lab)]
+        else:
+            local = []
+        for v in local:
+            gv = v + a
+            tri_w = binding.weights[gv]
+            corner = body.faces[binding.triangles[gv]]  # (P, k, 3)
+            bw = np.bincount(corner.ravel(), weights=np.repeat(tri_w.ravel(), 3), minlength=body.n_points)
+            bv = np.flatnonzero(bw > 0)
+            groups.append((gv, bv, bw[bv]))
+        if local:
+            names.append(item.name)
+    return groups, names
+
+
+def loose_weights(items: list[Mesh], offsets: np.ndarray, skirts: list, clearance: np.ndarray,
+                  groups: list) -> np.ndarray:
+    """How much each vertex's displacement is smoothed (:func:`corrections.looseness`):
+    skirt items entirely, rigid parts not at all (they move as a whole already).
+
+    Parameters
+    ----------
+    items : list of Mesh
+    offsets : (n_items + 1,) int array
+    skirts : list of str
+    clearance : (M,) float array
+    groups : list
+        Rigid groups.
+
+    Returns
+    -------
+    (M,) float array
+        0..1.
+    """
+    skirt_mask = np.zeros(len(clearance), dtype=bool)
+    for item, a, b in zip(items, offsets[:-1], offsets[1:]):
+        if item.name in skirts:
+            skirt_mask[a:b] = True
+    loose = looseness(clearance, skirt_mask)
+    for gv, _, _ in groups:
+        loose[gv] = 0.0
+    return loose
+
+
+def plan(ref: Character, k: int = 5, use_regions: bool = True, rigid="auto", auto_rigid: AutoRigid | None = None,
+         far: float = FAR_FROM_BODY, strict_far: bool = False, regions: ItemRegions | None = None,
+         ref_clearance: np.ndarray | None = None) -> DressPlan:
+    """Bind every item of ``ref`` to its body (done once per reference).
+
+    Parameters
+    ----------
+    ref : Character
+        The reference: body and items (internal space).
+    k : int
+        Body triangles per item vertex.
+    use_regions : bool
+        Bind each vertex within its body region (:mod:`regions`).
+    rigid : "auto", "none" or list of str
+        "auto": small stiff parts (see :class:`AutoRigid`); "none"; or the
+        names of items moved rigidly as a whole (per body region).
+    auto_rigid : AutoRigid, optional
+        The thresholds of "auto".
+    far : float
+        m; item vertices farther than this from the body are warned about.
+    strict_far : bool
+        Make that an error.
+    regions : ItemRegions, optional
+        The regions of an earlier plan of these items (``DressPlan.regions``),
+        e.g. of the reference in its rest pose: its binding regions and skirt
+        items are used. Regions are best told apart with the limbs away from
+        the body: a posed body (hands hanging beside a skirt) would hand skirt
+        vertices to the arms. Default: found on this body.
+    ref_clearance : (M,) float array, optional
+        Clearance each item vertex keeps (signed distance to the body it was
+        authored on); default: measured on ``ref``. A posed reference passes
+        its rest-pose clearance: posing moves rigid parts (a shoe over bending
+        toes) through the skin, which is no reason to leave them there.
+
+    Returns
+    -------
+    DressPlan
+    """
+    t0 = time.perf_counter()
+    items, offsets, pts = stack_items(ref)
+    body = ref.body
+    degenerate = degenerate_triangles(ref)
+    body_reg = body_regions(ref, use_regions)
+    if regions is None:
+        good = np.flatnonzero(~degenerate)
+        tree = cKDTree(body.points[body.faces].mean(axis=1)[good])
+        labels, skirts = item_labels(body, body_reg.vertex, body_reg.triangle[good], items, pts, offsets, tree)
+    else:
+        if len(regions.bind) != len(pts):
+            raise ValueError(f"the given regions have {len(regions.bind)} entries for {len(pts)} item vertices")
+        labels, skirts = np.asarray(regions.bind).copy(), list(regions.skirt_items)
+    t1 = time.perf_counter()
+    binding = bind_items(body, pts, labels, body_reg, degenerate, k)
+    t2 = time.perf_counter()
+    ref_query = SurfaceQuery(body.faces, body.points)
+    ref_clear, foot = reference_clearance(ref, ref_query, items, offsets, pts, ref_clearance, far, strict_far)
+    item_regions = ItemRegions(vertex=np.where(labels == R.HIPS, R.TORSO, labels), bind=labels,
+                               triangle=body_reg.triangle, body=body_reg.vertex, skirt_items=skirts)
+    mesh = stacked_mesh(items, offsets)
+    rigid_groups, rigid_items = find_rigid_groups(items, offsets, item_regions.vertex, ref_clear, binding, body,
+                                                  rigid, auto_rigid or AutoRigid())
+    loose = loose_weights(items, offsets, skirts, ref_clear, rigid_groups)
+    t3 = time.perf_counter()
+    order = [(i, j, g) for i, j, g in layer_order(items, offsets, pts, ref_clear)
+             if items[i].name not in rigid_items]  # rigid parts move as a whole
+    return DressPlan(items=items, binding=binding, offsets=offsets, ref_points=pts, ref_body=body.points,
+                     ref_clearance=ref_clear, ref_foot=Footprint(foot["triangle"], foot["bary"]),
+                     body_query=ref_query, regions=item_regions, mesh=mesh,
+                     rigid_groups=rigid_groups, rigid_items=rigid_items,
+                     insets_kept=group_mask(rigid_groups, len(pts)),
+                     looseness=loose, smoother=LooseSmoother(mesh.neighbours, loose),
+                     layers=layer_gaps(ref_query, pts, offsets, order, ref_clear, foot=foot["point"]),
+                     timings={"regions_s": t1 - t0, "bind_s": t2 - t1, "plan_rest_s": t3 - t2})
