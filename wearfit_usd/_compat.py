@@ -59,7 +59,7 @@ MOVED: dict[str, tuple[str, ...]] = {
     "metrics": ("dress.metrics",),
     "untangle": ("dress.untangle",),
     "redress": ("dress.plan", "dress.layers", "dress.corrections", "dress.apply", "dress.repair",
-                "dress.untangle", "dress.redress", "dress.binding", "dress.regions",
+                "dress.untangle", "dress.binding", "dress.regions",
                 "dress.rigid_parts", "dress.body_stretch", "geometry.mesh"),
     "frame_eval": ("animate.frame_eval",),
     "penetration_guard": ("animate.penetration_guard",),
