@@ -234,11 +234,12 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
 def _motion_measures(reference: Character, target: Character, dressed, opt: AnimateOptions,
                      ref_plan) -> MotionMeasures:
     """The motion measures' reference: the items dressed statically on the
-    target's bind pose (what `wearfit dress` gives; ``dressed`` already is
-    that in lbs mode and with ``dress_pose="bind"``, otherwise one more
-    dressing), with the rigid groups of its plan."""
-    if not (opt.mode == "lbs" or opt.dress_pose == "bind"):
-        dressed = dress_items(reference, target, k=opt.k, untangle=opt.untangle, prepared=ref_plan)
+    target's bind pose, as `wearfit dress` dresses them (untangle pass on;
+    ``dressed`` already is that in lbs mode or with ``dress_pose="bind"``
+    and ``untangle``, otherwise one more dressing), with the rigid groups of
+    its plan. The same reference in both modes: bind and lbs compare."""
+    if not ((opt.mode == "lbs" or opt.dress_pose == "bind") and opt.untangle):
+        dressed = dress_items(reference, target, k=opt.k, prepared=ref_plan)
     pl = dressed.plan
     return MotionMeasures(target.body.faces, target.body.points,
                           [(m.name, m.points, m.faces) for m in dressed.items],
