@@ -286,11 +286,20 @@ def test_walk_report_matches_a_direct_computation(usd_dir, bvh_dir, tmp_path):
         for k in ("coverage_loss_pct", "new_pen_pct"):
             if want[k] is not None:
                 assert got[k] == pytest.approx(want[k], abs=0.2), (name, k)   # float32 points on file
-    # --strict: the same run fails with a message (the shot is still written)
-    shot.unlink()
+    # --strict on the first 2 frames: fails exactly when its report has a
+    # figure over a limit, with the shot written all the same; and measuring
+    # leaves the shot as it is without
+    strict, strict_rep = tmp_path / "strict.usdc", tmp_path / "strict.json"
     rc = main(["animate", str(usd_dir / "ref_female.usda"), str(usd_dir / "body_female_thin.usdc"), str(clip),
-               "--start", "1", "--end", "9", "-o", str(shot), "--strict", "-q"])
-    worst = animate(ref, tgt, read_bvh(clip), tmp_path / "again.usdc",
-                    AnimateOptions(start=1, end=9, measure_every=1)).motion_worst
+               "--start", "1", "--end", "9", "-o", str(strict), "--strict", "--report", str(strict_rep), "-q"])
+    worst = json.loads(strict_rep.read_text())["motion_worst"]
     assert rc == (1 if MotionLimits().violations(worst) else 0)
-    assert shot.exists()
+    assert strict.exists()
+    plain = tmp_path / "plain.usdc"
+    animate(ref, tgt, read_bvh(clip), plain, AnimateOptions(start=1, end=9))
+    a, b = Usd.Stage.Open(str(strict)), Usd.Stage.Open(str(plain))
+    for n in names:
+        for t in (0, 1):
+            pa = np.array(UsdGeom.Mesh(a.GetPrimAtPath(f"/Root/Items/{n}")).GetPointsAttr().Get(t))
+            pb = np.array(UsdGeom.Mesh(b.GetPrimAtPath(f"/Root/Items/{n}")).GetPointsAttr().Get(t))
+            assert np.array_equal(pa, pb)
