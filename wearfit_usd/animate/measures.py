@@ -112,7 +112,7 @@ def ray_triangle(orig: np.ndarray, dirs: np.ndarray, a: np.ndarray, b: np.ndarra
 
 
 def cast_rays(orig: np.ndarray, dirs: np.ndarray, points: np.ndarray, faces: np.ndarray,
-              t_min: float, t_max: float, chunk: int = 4096):
+              t_min: float, t_max: float, chunk: int = 1024):
     """Nearest triangle of a mesh each ray segment meets.
 
     orig, dirs (R, 3) (dirs unit), mesh points (M, 3) and faces (F, 3);
