@@ -26,6 +26,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from ..model import Character
 from .frame_eval import FrameEvaluator
+from .measures import MEASURES, MotionMeasures, worst_frames
+from ..dress.metrics import item_rigid_groups
 from .penetration_guard import PenetrationGuard
 from .skin_transfer import transfer_weights
 from ..dress.apply import apply as apply_plan, dress
@@ -51,6 +53,7 @@ class AnimateOptions:
     penetration_margin: float = 0.001  # metres
     dress_pose: str = "first"          # "first": dress in frame 0's pose; "bind": on the bind pose
     measure_every: int = 0             # exact penetration statistics every N frames (0 = off)
+    motion_measures: bool = True       # with measure_every: also the motion measures (animate.measures)
     untangle: bool = False             # dressing's untangle pass on frame 0 (see dress.apply.apply)
 
 
@@ -62,11 +65,18 @@ class AnimateReport:
     per_frame_penetration: list = field(default_factory=list)  # fraction of item vertices
     worst_frame_penetration: float = 0.0
     mapping: dict = field(default_factory=dict)
+    # motion measures (animate.measures), against the items dressed statically
+    # on the target's bind pose; per measured frame and their worst frames
+    measured_frames: list = field(default_factory=list)
+    motion_series: dict = field(default_factory=dict)   # {item: {measure: [value per measured frame]}}
+    motion_worst: dict = field(default_factory=dict)    # {item: {measure: {"value", "frame"}}}
 
     def as_dict(self) -> dict:
         return {"frames": self.frames, "fps": self.fps, "timings_s": self.timings,
                 "worst_frame_new_penetration_pct": 100 * self.worst_frame_penetration,
                 "per_frame_new_penetration_pct": [round(100 * x, 4) for x in self.per_frame_penetration],
+                "motion_worst": self.motion_worst, "measured_frames": self.measured_frames,
+                "motion_per_frame": self.motion_series,
                 "mapping": self.mapping}
 
 
@@ -166,6 +176,11 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
     rep.timings["bind"] = time.perf_counter() - t0
     # clearances to keep (and "new penetration" = inside now, outside when dressed)
     guard = PenetrationGuard(body.faces, base_body, all_base, margin=opt.penetration_margin)
+    measures = None
+    if opt.measure_every and opt.motion_measures:
+        t0 = time.perf_counter()
+        measures = _motion_measures(reference, target, dressed, opt, ref_plan)
+        rep.timings["measure_setup"] = time.perf_counter() - t0
 
     clip_frames = opt.clip_frames
     if clip_frames is None and n_frames > 2000:
@@ -189,6 +204,8 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
             t_pen += td - tc
             if opt.measure_every and (f % opt.measure_every == 0 or f == n_frames - 1):
                 rep.per_frame_penetration.append(guard.inside_fraction(body_f, pts))
+                if measures is not None:
+                    _record(rep, f, measures(body_f, pts))
                 tm = time.perf_counter()
                 t_measure += tm - td
                 td = tm
@@ -200,6 +217,8 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
         tw = time.perf_counter()
     t_write += time.perf_counter() - tw
     rep.worst_frame_penetration = max(rep.per_frame_penetration) if rep.per_frame_penetration else 0.0
+    if measures is not None:
+        rep.motion_worst = worst_frames(rep.motion_series, rep.measured_frames)
     rep.timings.update({"lbs_total": t_lbs, "evaluate_total": t_eval, "penetration_total": t_pen,
                         "write_total": t_write, "measure_total": t_measure,
                         "lbs_fps": n_frames / max(t_lbs, 1e-9),
@@ -207,6 +226,30 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
                         "write_fps": n_frames / max(t_write, 1e-9),
                         "total": time.perf_counter() - t_all})
     return rep
+
+
+def _motion_measures(reference: Character, target: Character, dressed, opt: AnimateOptions,
+                     ref_plan) -> MotionMeasures:
+    """The motion measures' reference: the items dressed statically on the
+    target's bind pose, as `wearfit dress` dresses them (untangle pass on;
+    ``dressed`` already is that in lbs mode or with ``dress_pose="bind"``
+    and ``untangle``, otherwise one more dressing), with the rigid groups of
+    its plan. The same reference in both modes: bind and lbs compare."""
+    if not ((opt.mode == "lbs" or opt.dress_pose == "bind") and opt.untangle):
+        dressed = dress_items(reference, target, k=opt.k, prepared=ref_plan)
+    pl = dressed.plan
+    return MotionMeasures(target.body.faces, target.body.points,
+                          [(m.name, m.points, m.faces) for m in dressed.items],
+                          [item_rigid_groups(pl, sl) for sl in pl.item_slices()])
+
+
+def _record(rep: AnimateReport, frame: int, rows: list) -> None:
+    """Append one measured frame's per-item figures to the report's series."""
+    rep.measured_frames.append(int(frame))
+    for row in rows:
+        series = rep.motion_series.setdefault(row["item"], {k: [] for k in MEASURES})
+        for k in MEASURES:
+            series[k].append(row[k])
 
 
 class _LBSEvaluator:

@@ -1,0 +1,346 @@
+"""Motion measures: how far animated items keep the shape, contact and
+coverage of the same items dressed statically on the same target (plain
+numpy; used by ``animate`` with ``measure_every``, ``wearfit animate
+--report/--strict`` and the motion benchmark).
+
+Built once from the static dress (:class:`MotionMeasures`: the target body
+at the pose the items were dressed on, the dressed items, their rigid
+groups), then called per frame with the body and item points of that
+frame. Per item and per frame:
+
+- **stretch** (``stretch_p99``, ``stretch_max``): each item edge's length
+  over its length in the static dress, divided by the largest stretch the
+  body itself allows under it between the static body and this frame's
+  (:func:`dress.body_stretch.stretch_range`, the range the dressing measure
+  judges edges by; its ``hi`` end). Values <= 1 count as 1: 1.0 means the
+  edge stretched no more than the skin under it. Only lengthening is
+  measured (tearing, points pulled out); compression is folding.
+- **separation** (``separation_p95_mm``, ``separation_max_mm``): the change
+  of each vertex's signed distance to the body against the static dress,
+  over the item's *contact* vertices (within ``contact`` of the body, or
+  inside it, in the static dress): a collar leaving the ankle. A skirt's hem
+  hanging away from the legs is not a contact and may swing. None for items
+  with fewer than 3 contact vertices (they do not touch the body).
+- **coverage loss** (``coverage_loss_pct``): of the body vertices the item
+  covers in the static dress (a ray from the vertex along its normal meets
+  the item between ``-inset`` and ``reach`` metres), the percentage it no
+  longer covers in this frame (tears, the body poking through, the item
+  sliding off). None for items that cover no body vertex.
+- **rigid parts** (``rigid_mm``): the largest distance of a vertex of a rigid
+  group (each articulated piece: the plan's rigid groups are split per body
+  region, e.g. a shoe per foot) from the best similarity transform
+  (:func:`geometry.mesh.similarity_fit`) of the group's static points onto
+  its points in this frame. None for items without rigid groups.
+- **new penetrations** (``new_pen_pct``): item vertices outside the body (by
+  more than ``margin``) in the static dress and inside it by more than
+  ``margin`` now, percent of the former.
+
+:class:`MotionLimits` holds the limits of issue 17 in one place.
+"""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.spatial import cKDTree
+
+from ..dress.body_stretch import stretch_range, vertex_stretch
+from ..errors import WearfitError
+from ..geometry.closest import SurfaceQuery, VertexNormals
+from ..geometry.mesh import edges, similarity_fit
+
+MEASURES = ("stretch_p99", "stretch_max", "separation_p95_mm", "separation_max_mm", "coverage_loss_pct",
+            "rigid_mm", "new_pen_pct")
+
+
+@dataclass(frozen=True)
+class MotionLimits:
+    """Upper limits of the worst frame of each motion measure (issue 17)."""
+    stretch_p99: float = 1.15          # x the body's own stretch
+    stretch_max: float = 1.5           # x the body's own stretch
+    coverage_loss_pct: float = 2.0     # % of the statically covered body vertices
+    separation_p95_mm: float = 15.0    # items that touch the body
+    rigid_mm: float = 2.0              # from the best similarity
+    new_pen_pct: float = 1.0           # % of the item vertices outside in the static dress
+
+    def violations(self, worst: dict) -> list[str]:
+        """Messages for every figure over its limit. worst: {item: {measure:
+        {"value": float | None, "frame": int}}} (:func:`worst_frames`)."""
+        out = []
+        for item, figs in worst.items():
+            for key, limit in asdict(self).items():
+                v = figs.get(key, {}).get("value")
+                if v is not None and np.isfinite(v) and v > limit:
+                    out.append(f"{item}: {key} {v:.4g} > {limit:g} (frame {figs[key]['frame']})")
+                elif v is not None and not np.isfinite(v):
+                    out.append(f"{item}: {key} is {v} (frame {figs[key]['frame']})")
+        return out
+
+
+class MotionLimitError(WearfitError):
+    """``animate --strict``: a motion measure is over its limit (exit code 1)."""
+
+    def __init__(self, path, message: str):
+        self.path = str(path) if path is not None else None
+        self.message = message
+        super().__init__(f"{self.path or '<shot>'}: {message}")
+
+
+def ray_triangle(orig: np.ndarray, dirs: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray,
+                 t_min: float, t_max: float):
+    """Two-sided ray / triangle intersection (Moller-Trumbore), row by row.
+
+    orig, dirs (P, 3) rays (dirs unit), a, b, c (P, 3) triangle corners.
+    Returns (hit (P,) bool: the ray meets the triangle at a parameter in
+    [t_min, t_max], t (P,) that parameter (meaningless where not hit))."""
+    e1 = b - a
+    e2 = c - a
+    p = np.cross(dirs, e2)
+    det = np.einsum("ij,ij->i", e1, p)
+    scale = np.linalg.norm(e1, axis=1) * np.linalg.norm(e2, axis=1)
+    ok = np.abs(det) > 1e-12 * np.maximum(scale, 1e-300)
+    inv = 1.0 / np.where(ok, det, 1.0)
+    s = orig - a
+    u = np.einsum("ij,ij->i", s, p) * inv
+    q = np.cross(s, e1)
+    v = np.einsum("ij,ij->i", dirs, q) * inv
+    t = np.einsum("ij,ij->i", e2, q) * inv
+    tol = 1e-9
+    hit = ok & (u >= -tol) & (v >= -tol) & (u + v <= 1 + tol) & (t >= t_min) & (t <= t_max)
+    return hit, t
+
+
+def cast_rays(orig: np.ndarray, dirs: np.ndarray, points: np.ndarray, faces: np.ndarray,
+              t_min: float, t_max: float, chunk: int = 1024):
+    """Nearest triangle of a mesh each ray segment meets.
+
+    orig, dirs (R, 3) (dirs unit), mesh points (M, 3) and faces (F, 3);
+    segments from ``orig + t_min dirs`` to ``orig + t_max dirs``. Candidate
+    triangles: those whose centroid lies within half the segment plus the
+    largest centroid-to-corner distance of the mesh from the segment's
+    midpoint (a KD-tree over the centroids), tested exactly.
+
+    Returns the hit triangle per ray (R,) int, -1 where none is met.
+    """
+    out = np.full(len(orig), -1, dtype=np.int64)
+    if len(faces) == 0 or len(orig) == 0:
+        return out
+    tri = points[faces]
+    cen = tri.mean(axis=1)
+    reach = float(np.sqrt(np.max(np.einsum("fcj,fcj->fc", tri - cen[:, None], tri - cen[:, None]))))
+    tree = cKDTree(cen)
+    half = 0.5 * (t_max - t_min)
+    mid = orig + dirs * (0.5 * (t_min + t_max))
+    for s in range(0, len(orig), chunk):
+        sl = slice(s, min(len(orig), s + chunk))
+        lists = tree.query_ball_point(mid[sl], half + reach)
+        lens = np.fromiter((len(x) for x in lists), dtype=np.int64, count=len(lists))
+        if lens.sum() == 0:
+            continue
+        cand = np.concatenate([np.asarray(x, dtype=np.int64) for x in lists if len(x)])
+        ray = np.repeat(np.arange(sl.start, sl.stop), lens)
+        hit, t = ray_triangle(orig[ray], dirs[ray], tri[cand, 0], tri[cand, 1], tri[cand, 2], t_min, t_max)
+        if not hit.any():
+            continue
+        ray, cand, t = ray[hit], cand[hit], t[hit]
+        order = np.lexsort((np.abs(t), ray))  # nearest hit first within each ray
+        ray, cand = ray[order], cand[order]
+        first = np.concatenate([[True], ray[1:] != ray[:-1]])
+        out[ray[first]] = cand[first]
+    return out
+
+
+class MotionMeasures:
+    """``MotionMeasures(...)(body_f (N, 3), items_f (M, 3)) -> [dict per item]``:
+    the motion measures of one frame against the static dress (see the
+    module docstring).
+
+    Parameters
+    ----------
+    body_faces : (T, 3) int, the target body's triangles.
+    body_points : (N, 3) the target body in the static dress.
+    items : list of (name, points (M_i, 3), faces (F_i, 3)): the items dressed
+        statically on ``body_points``; frames pass them stacked in this order.
+    rigid_groups : list (one per item) of lists of vertex index arrays
+        (local to the item), or None.
+    reach, inset : coverage ray segment, metres along the body normal
+        (default 8 cm out, 5 mm in: items sitting just under the skin).
+    contact : metres: item vertices this close to the body (or inside) in
+        the static dress are the ones whose separation is measured.
+    margin : metres, the inside test of the new penetrations.
+    k : body triangles per item vertex for its local body stretch (the
+        closest one and the ones with the nearest centroids).
+    """
+
+    def __init__(self, body_faces: np.ndarray, body_points: np.ndarray, items: list,
+                 rigid_groups: list | None = None, reach: float = 0.08, inset: float = 0.005,
+                 contact: float = 0.01, margin: float = 0.001, k: int = 5):
+        self.faces = np.ascontiguousarray(body_faces, dtype=np.int64)
+        self.body0 = np.ascontiguousarray(body_points, dtype=np.float64)
+        self.names = [n for n, _, _ in items]
+        self.item_faces = [np.asarray(f, dtype=np.int64) for _, _, f in items]
+        sizes = [len(p) for _, p, _ in items]
+        self.offsets = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+        self.items0 = np.concatenate([np.asarray(p, dtype=np.float64) for _, p, _ in items])
+        self.reach, self.inset, self.contact, self.margin = float(reach), float(inset), float(contact), float(margin)
+        self.rigid_groups = [[np.asarray(g, dtype=np.int64) for g in (gs or []) if len(g) >= 3]
+                             for gs in (rigid_groups or [[] for _ in items])]
+        self.query = SurfaceQuery(self.faces, self.body0)
+        self.normals = VertexNormals(self.faces, len(self.body0))
+        foot = self.query.closest(self.items0)
+        self.clearance0 = foot["distance"]
+        self.foot_tri, self.foot_bary = foot["triangle"], foot["bary"]
+        # the body triangles each item vertex's local stretch is taken over
+        kk = min(k, len(self.faces))
+        _, near = cKDTree(self.body0[self.faces].mean(axis=1)).query(self.items0, k=kk)
+        near = np.asarray(near, dtype=np.int64).reshape(len(self.items0), -1)
+        self.triangles = np.concatenate([self.foot_tri[:, None], near], axis=1)
+        # item edges, stacked (global vertex indices), and their item
+        e = [edges(f) + a for f, a in zip(self.item_faces, self.offsets[:-1])]
+        self.edge_item = np.repeat(np.arange(len(items)), [len(x) for x in e])
+        self.edges = np.concatenate(e) if e else np.zeros((0, 2), dtype=np.int64)
+        self.len0 = np.linalg.norm(self.items0[self.edges[:, 1]] - self.items0[self.edges[:, 0]], axis=1)
+        self.contact_mask = self.clearance0 < self.contact
+        self.outside0 = self.clearance0 > -self.margin
+        # coverage: the body vertices each item covers statically, and the hit triangle
+        n0 = self.normals(self.body0)
+        # per item: the triangles sharing a vertex with each triangle (CSR rows)
+        self.rings = []
+        for f, n in zip(self.item_faces, sizes):
+            inc = sp.csr_matrix((np.ones(3 * len(f)), (np.repeat(np.arange(len(f)), 3), f.ravel())),
+                                shape=(len(f), n))
+            ring = (inc @ inc.T).tocsr()
+            ring.sort_indices()
+            self.rings.append(ring)
+        self.covered, self.cover_tri = [], []
+        for i in range(len(items)):
+            sl = self._slice(i)
+            hit = cast_rays(self.body0, n0, self.items0[sl], self.item_faces[i], -self.inset, self.reach)
+            v = np.flatnonzero(hit >= 0)
+            self.covered.append(v)
+            self.cover_tri.append(hit[v])
+
+    def _slice(self, i: int) -> slice:
+        return slice(int(self.offsets[i]), int(self.offsets[i + 1]))
+
+    def coverage_loss(self, i: int, body_points: np.ndarray, body_normals: np.ndarray,
+                      item_points: np.ndarray) -> float | None:
+        """Percent of item i's statically covered body vertices not covered
+        now; body_points/body_normals (N, 3) (unit normals), item_points
+        (M_i, 3) this item's points. None if it covers nothing."""
+        v = self.covered[i]
+        if len(v) == 0:
+            return None
+        f = self.item_faces[i]
+        o, d = body_points[v], body_normals[v]
+        tri = item_points[f[self.cover_tri[i]]]
+        # the static hit triangle first (it follows the item), then the
+        # triangles around it, a full search for the rest
+        hit, _ = ray_triangle(o, d, tri[:, 0], tri[:, 1], tri[:, 2], -self.inset, self.reach)
+        miss = np.flatnonzero(~hit)
+        if len(miss):
+            ring = self.rings[i]
+            start = ring.indptr[self.cover_tri[i][miss]]
+            lens = ring.indptr[self.cover_tri[i][miss] + 1] - start
+            ray = np.repeat(miss, lens)
+            first = np.repeat(np.cumsum(lens) - lens, lens)
+            cand = ring.indices[np.repeat(start, lens) + np.arange(int(lens.sum())) - first]
+            tc = item_points[f[cand]]
+            h, _ = ray_triangle(o[ray], d[ray], tc[:, 0], tc[:, 1], tc[:, 2], -self.inset, self.reach)
+            hit[ray[h]] = True
+            miss = np.flatnonzero(~hit)
+        if len(miss):
+            again = cast_rays(o[miss], d[miss], item_points, f, -self.inset, self.reach)
+            hit[miss] = again >= 0
+        return 100.0 * float(np.sum(~hit)) / len(v)
+
+    def __call__(self, body_points: np.ndarray, item_points: np.ndarray) -> list[dict]:
+        """Per-item figures of one frame: body_points (N, 3) and the items
+        stacked (M, 3), both in the static dress's space. Returns one dict
+        per item with the keys of :data:`MEASURES` (None where a measure
+        does not apply)."""
+        body = np.ascontiguousarray(body_points, dtype=np.float64)
+        pts = np.ascontiguousarray(item_points, dtype=np.float64)
+        # stretch against the body's own under each edge
+        vr = vertex_stretch(self.triangles, self.body0, body, self.faces)
+        _, hi = stretch_range(self.items0, self.edges, self.triangles, self.body0, body, self.faces,
+                              self.foot_tri, self.foot_bary, self.clearance0, vertex_range=vr)
+        ln = np.linalg.norm(pts[self.edges[:, 1]] - pts[self.edges[:, 0]], axis=1)
+        beyond = np.maximum(ln / np.maximum(self.len0, 1e-12) / np.maximum(hi, 1e-12), 1.0)
+        # signed distance now
+        self.query.update(body)
+        dist = self.query.signed_distance(pts)
+        normals = self.normals(body)
+        rows = []
+        for i, name in enumerate(self.names):
+            sl = self._slice(i)
+            b = beyond[self.edge_item == i]
+            row = {"item": name,
+                   "stretch_p99": float(np.percentile(b, 99)) if len(b) else 1.0,
+                   "stretch_max": float(b.max()) if len(b) else 1.0}
+            c = self.contact_mask[sl]
+            if c.sum() >= 3:
+                sep = 1000.0 * np.abs(dist[sl][c] - self.clearance0[sl][c])
+                row["separation_p95_mm"] = float(np.percentile(sep, 95))
+                row["separation_max_mm"] = float(sep.max())
+            else:
+                row["separation_p95_mm"] = row["separation_max_mm"] = None
+            row["coverage_loss_pct"] = self.coverage_loss(i, body, normals, pts[sl])
+            groups = self.rigid_groups[i]
+            if groups:
+                p0, p1 = self.items0[sl], pts[sl]
+                res = 0.0
+                for g in groups:
+                    s, rot, t = similarity_fit(p0[g], p1[g])
+                    res = max(res, float(np.linalg.norm(s * p0[g] @ rot + t - p1[g], axis=1).max()))
+                row["rigid_mm"] = 1000.0 * res
+            else:
+                row["rigid_mm"] = None
+            out0 = self.outside0[sl]
+            row["new_pen_pct"] = (100.0 * float(np.sum(out0 & (dist[sl] < -self.margin))) / int(out0.sum())
+                                  if out0.any() else 0.0)
+            rows.append(row)
+        return rows
+
+
+def worst_frames(series: dict, frames: list) -> dict:
+    """The worst frame of every measure per item.
+
+    series: {item: {measure: [value per measured frame]}} (None entries
+    where the measure does not apply), frames: the measured frame numbers.
+    Returns {item: {measure: {"value": float | None, "frame": int | None}}}:
+    the largest value (NaN counts as worst) and its frame."""
+    out = {}
+    for item, figs in series.items():
+        out[item] = {}
+        for key in MEASURES:
+            vals = figs.get(key, [])
+            best, at = None, None
+            for v, f in zip(vals, frames):
+                if v is None:
+                    continue
+                if best is None or not np.isfinite(v) or (np.isfinite(best) and v > best):
+                    best, at = float(v), int(f)
+                    if not np.isfinite(v):
+                        break
+            out[item][key] = {"value": best, "frame": at}
+    return out
+
+
+def describe_worst(item: str, figs: dict, limits: MotionLimits | None = None) -> str:
+    """One line: the worst frame of each measure of one item, ``!`` after a
+    figure over its limit. figs: one item of :func:`worst_frames`."""
+    lim = asdict(limits or MotionLimits())
+
+    def fig(key, fmt, unit):
+        w = figs.get(key, {})
+        v = w.get("value")
+        if v is None:
+            return "-"
+        flag = "!" if key in lim and not (v <= lim[key]) else ""
+        return f"{v:{fmt}}{unit}{flag} (f{w.get('frame')})"
+    return (f"{item}: stretch p99 {fig('stretch_p99', '.3g', 'x')} max {fig('stretch_max', '.3g', 'x')}; "
+            f"separation p95 {fig('separation_p95_mm', '.3g', ' mm')} max {fig('separation_max_mm', '.3g', ' mm')}; "
+            f"coverage loss {fig('coverage_loss_pct', '.3g', ' %')}; rigid {fig('rigid_mm', '.3g', ' mm')}; "
+            f"new penetrations {fig('new_pen_pct', '.3g', ' %')}")
