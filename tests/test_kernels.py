@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from wearfit_usd.kernels import compiled as kernels
+import wearfit_usd.kernels as kernels
 from wearfit_usd.dress.binding import bind
 from wearfit_usd.geometry.closest import closest_point_on_triangles
 from wearfit_usd.demo.samples.body import make_body
@@ -74,7 +74,7 @@ def test_compiled_face_normals():
 
 _FALLBACK_SCRIPT = r"""
 import sys, numpy as np
-from wearfit_usd.kernels import compiled as kernels
+import wearfit_usd.kernels as kernels
 assert not kernels.HAVE_NUMBA
 from wearfit_usd.geometry.closest import SurfaceQuery
 from wearfit_usd.dress.binding import bind
