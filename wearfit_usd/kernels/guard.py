@@ -63,31 +63,28 @@ def guard_estimate(q, hint, body, grid, r2, out_est, out_vi):
     body.points, from ``hint`` (M,)): offset along that vertex's normal sum
     (``body``: :class:`GuardBody`), written to out_est (M,) (+inf when no
     vertex is that near) and that vertex to out_vi (M,) (0 when none)."""
+    points, spts, order, starts, lo, h, dims = grid
+    vsum = body.normal_sums
     for i in range(q.shape[0]):
         qx = q[i, 0]
         qy = q[i, 1]
         qz = q[i, 2]
-        bi, _ = nearest_from(qx, qy, qz, hint[i], r2, grid)
+        bi, _ = nearest_from(qx, qy, qz, hint[i], r2, points, spts, order, starts, lo, h, dims)
         if bi < 0:
             out_est[i] = np.inf
             out_vi[i] = 0
         else:
-            out_est[i] = vertex_estimate(qx, qy, qz, bi, body.points, body.normal_sums)
+            out_est[i] = vertex_estimate(qx, qy, qz, bi, points, vsum)
             out_vi[i] = bi
 
 
 @jit
-def _exact_signed(ix, iy, iz, i, near, cand0, body):
+def _exact_signed(ix, iy, iz, i, near, cand0, ring, points, faces, edge_id, face_n, edge_faces):
     """Signed distance of (ix, iy, iz) to the closest of the triangles
     cand0[i] and ring[near] (first wins ties), sign and normal (not unit)
     from the closest feature's pseudo-normal, as geometry.closest's SurfaceQuery
     (an edge's: the sum of its faces' unit normals, edge_faces (E, w) in
     index order, -1 padded)."""
-    points = body.points
-    faces = body.faces
-    ring = body.ring
-    face_n = body.face_normal
-    edge_faces = body.edge_faces
     nc = cand0.shape[1]
     bd = np.inf
     bs = 0.0
@@ -104,7 +101,7 @@ def _exact_signed(ix, iy, iz, i, near, cand0, body):
             bin_ = inside
             btri = f
     cx, cy, cz = point_on(btri, bs, bt, points, faces)
-    e, v = closest_feature(btri, bs, bt, bin_, faces, body.edge_id)
+    e, v = closest_feature(btri, bs, bt, bin_, faces, edge_id)
     if e >= 0:
         nx = 0.0
         ny = 0.0
@@ -145,15 +142,9 @@ def guard_frame(item, state, body, grid, r2, decay, margin, drop, out):
     suspects inside by more than ``margin`` before correction. Runs on all
     cores (1.7x faster on 2 cores for the 12,661 vertices of ref_male's
     items; the same numbers as one thread)."""
-    push = state.push
-    direction = state.direction
-    hint = state.hint
-    cand0 = state.cand0
-    approx0 = state.approx0
-    outside0 = state.outside0
-    target = state.target
-    points = body.points
-    vsum = body.normal_sums
+    cand0, approx0, outside0, target, push, direction, hint = state
+    points, faces, face_n, edge_id, edge_faces, ring, vsum = body
+    _, spts, order, starts, lo, h, dims = grid  # grid.points is body.points
     n_inside = 0
     for i in prange(item.shape[0]):  # every i touches only row i of the state arrays
         p = push[i] * decay
@@ -163,16 +154,17 @@ def guard_frame(item, state, body, grid, r2, decay, margin, drop, out):
         px = ix + p * direction[i, 0]
         py = iy + p * direction[i, 1]
         pz = iz + p * direction[i, 2]
-        bi, _ = nearest_from(px, py, pz, hint[i], r2, grid)
+        bi, _ = nearest_from(px, py, pz, hint[i], r2, points, spts, order, starts, lo, h, dims)
         hint[i] = bi
         if bi >= 0 and outside0[i]:
             est = vertex_estimate(px, py, pz, bi, points, vsum)
             if est < approx0[i] - drop or est < margin:
                 # the body vertex nearest to the item vertex before any push
-                near, _ = nearest_from(ix, iy, iz, bi, r2, grid)
+                near, _ = nearest_from(ix, iy, iz, bi, r2, points, spts, order, starts, lo, h, dims)
                 if near < 0:
                     near = bi
-                sd, nx, ny, nz = _exact_signed(ix, iy, iz, i, near, cand0, body)
+                sd, nx, ny, nz = _exact_signed(ix, iy, iz, i, near, cand0, ring, points, faces, edge_id, face_n,
+                                               edge_faces)
                 ln = max(np.sqrt(nx * nx + ny * ny + nz * nz), 1e-12)
                 if sd < -margin:
                     n_inside += 1
@@ -185,9 +177,10 @@ def guard_frame(item, state, body, grid, r2, decay, margin, drop, out):
                     qx = ix + p * direction[i, 0]
                     qy = iy + p * direction[i, 1]
                     qz = iz + p * direction[i, 2]
-                    near2, _ = nearest_from(qx, qy, qz, near, r2, grid)
+                    near2, _ = nearest_from(qx, qy, qz, near, r2, points, spts, order, starts, lo, h, dims)
                     if near2 >= 0:
-                        sd2, mx, my, mz = _exact_signed(qx, qy, qz, i, near2, cand0, body)
+                        sd2, mx, my, mz = _exact_signed(qx, qy, qz, i, near2, cand0, ring, points, faces,
+                                                        edge_id, face_n, edge_faces)
                         if sd2 < margin:
                             lm = max(np.sqrt(mx * mx + my * my + mz * mz), 1e-12)
                             extra = target[i] - sd2
