@@ -121,7 +121,7 @@ def point_on(f, s, t, points, faces):
 @jit(inline=True)
 def closest_feature(f, s, t, inside, faces, edge_id):
     """The feature of triangle f that holds its closest point (s, t, inside
-    from :func:`closest_on_triangle`), decided as geometry.closest's feature codes are:
+    from :func:`closest_on_triangle`), by the rule of geometry.closest's feature codes:
     (edge id, vertex), both -1 for the face itself."""
     e = -1
     v = -1
