@@ -78,9 +78,9 @@ def test_compiled_signed_query_equals_the_numpy_features():
     e = mesh.vertices[mesh.edges_unique[:300]].mean(axis=1)
     q = np.concatenate([rng.uniform(-0.6, 0.6, size=(500, 3)), v * 1.01, v * 0.99, e * 1.02, e * 0.98])
     res = sq.closest(q)
-    _, ci = sq._ctree.query(q, k=8)
-    _, vi = sq._vtree.query(q, k=1)
-    cand = np.concatenate([ci, sq._ring[vi]], axis=1)
+    _, ci = sq.centroid_tree.query(q, k=8)
+    _, vi = sq.vertex_tree.query(q, k=1)
+    cand = np.concatenate([ci, sq.ring[vi]], axis=1)
     d2, cp, bary, feat, tri = sq._eval_candidates(q, cand)
     n = sq._feature_normal(tri, feat)
     assert len(set(feat.tolist())) == 7  # face, all three edges and all three corners occur
@@ -97,7 +97,7 @@ def test_moved_to_shares_topology_and_leaves_the_original():
     p = np.array([[0.0, 0.0, 1.5]])
     d0 = sq.signed_distance(p)[0]
     big = sq.moved_to(mesh.vertices * 2.0)
-    assert big._ring is sq._ring and big._edge_id is sq._edge_id
+    assert big.ring is sq.ring and big.edge_id is sq.edge_id
     np.testing.assert_allclose(big.signed_distance(p), SurfaceQuery(mesh.faces, mesh.vertices * 2.0).signed_distance(p))
     assert big.signed_distance(p)[0] < -0.45
     assert sq.signed_distance(p)[0] == d0 and sq.points is not big.points

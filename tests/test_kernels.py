@@ -1,13 +1,24 @@
-"""The compiled kernels (numba) give the numbers of the plain numpy/scipy
-code they replace, on random and degenerate inputs."""
+"""The compiled kernels (numba) give the numbers of their numpy twins, on
+random and degenerate inputs; without numba (WEARFIT_NO_NUMBA=1) the public
+kernels run the twins and give the same numbers."""
+import os
+import subprocess
+import sys
+
 import numpy as np
 import pytest
+import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
-from wearfit_usd.kernels import compiled as kernels
-from wearfit_usd.dress.binding import bind
-from wearfit_usd.geometry.closest import closest_point_on_triangles
+import wearfit_usd.kernels as kernels
+from wearfit_usd.animate.penetration_guard import PenetrationGuard
 from wearfit_usd.demo.samples.body import make_body
+from wearfit_usd.dress.binding import bind
+from wearfit_usd.dress.rigid_parts import RigidParts
+from wearfit_usd.geometry.closest import SurfaceQuery, VertexNormals, closest_point_on_triangles, vertex_normals
+from wearfit_usd.kernels import binding as kb
+from wearfit_usd.kernels import closest as kc
+from wearfit_usd.kernels import normals as kn
 
 pytestmark = pytest.mark.skipif(not kernels.HAVE_NUMBA, reason="numba not installed (the numpy paths run)")
 
@@ -68,13 +79,17 @@ def test_compiled_face_normals():
     n = kernels.face_normals(body.points, body.faces, unit=False)
     p = body.points[body.faces]
     np.testing.assert_allclose(n, np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), atol=1e-15)
+    np.testing.assert_allclose(n, kn.face_normals_numpy(body.points, body.faces, unit=False), atol=1e-15)
     u = kernels.face_normals(body.points, body.faces, unit=True)
     np.testing.assert_allclose(u, n / np.linalg.norm(n, axis=1, keepdims=True), atol=1e-12)
+    faces = np.array([[0, 1, 2], [0, 1, 1]], dtype=np.int64)  # a zero-area face: the zero vector
+    pts = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]])
+    np.testing.assert_array_equal(kernels.face_normals(pts, faces), kn.face_normals_numpy(pts, faces))
 
 
 _FALLBACK_SCRIPT = r"""
 import sys, numpy as np
-from wearfit_usd.kernels import compiled as kernels
+import wearfit_usd.kernels as kernels
 assert not kernels.HAVE_NUMBA
 from wearfit_usd.geometry.closest import SurfaceQuery
 from wearfit_usd.dress.binding import bind
@@ -83,22 +98,28 @@ from wearfit_usd.demo.samples.body import make_body
 body = make_body(resolution=0.03).body
 rng = np.random.default_rng(3)
 q = body.points[rng.choice(len(body.points), 500)] + rng.normal(scale=0.01, size=(500, 3))
-sd = SurfaceQuery(body.faces, body.points).signed_distance(q)
+sq = SurfaceQuery(body.faces, body.points)
+sd = sq.signed_distance(q)
 b = bind(body.points, body.faces, q, k=5)
 ev = b.evaluate(body.points * 1.05)
 g = PenetrationGuard(body.faces, body.points, q)
 out, n = g.apply(body.points * 0.98, q)
-np.savez(sys.argv[1], sd=sd, ev=ev, out=out, n=n)
+# the public kernels dispatch to their numpy twins
+_, cand = sq.centroid_tree.query(q, k=6)
+sig = kernels.closest_signed(q, cand, sq.points, sq.faces, sq.face_normal, sq.edge_normal, sq.edge_id, sq.ring)
+cc = kernels.closest_candidates(q, cand, sq.points, sq.faces)
+fn = kernels.face_normals(body.points, body.faces, unit=False)
+vn = kernels.vertex_normals(body.points, body.faces)
+be = kernels.binding_eval(body.points * 1.05, b.used_faces, b.compact, np.zeros_like(b._buf))
+grid = kernels.RadiusGrid(body.points, 0.03)
+gi, gd = grid.nearest(q)
+np.savez(sys.argv[1], sd=sd, ev=ev, out=out, n=n, sig_d=sig[0], sig_n=sig[4], cc_d2=cc[0], fn=fn,
+         vn=vn, be=be, gi=gi, gd=gd)
 """
 
 
 def test_numpy_fallback_gives_the_same_numbers(tmp_path):
     """Without numba (WEARFIT_NO_NUMBA=1) the numpy/scipy paths run and agree."""
-    import os
-    import subprocess
-    import sys
-    from wearfit_usd.geometry.closest import SurfaceQuery
-    from wearfit_usd.animate.penetration_guard import PenetrationGuard
     out = tmp_path / "fallback.npz"
     env = dict(os.environ, WEARFIT_NO_NUMBA="1")
     subprocess.run([sys.executable, "-c", _FALLBACK_SCRIPT, str(out)], check=True, env=env)
@@ -113,6 +134,21 @@ def test_numpy_fallback_gives_the_same_numbers(tmp_path):
     moved, n = g.apply(body.points * 0.98, q)
     assert n == int(ref["n"]) and n > 0
     np.testing.assert_allclose(moved, ref["out"], atol=1e-12)
+    sq = SurfaceQuery(body.faces, body.points)
+    _, cand = sq.centroid_tree.query(q, k=6)
+    sig = kernels.closest_signed(q, cand, sq.points, sq.faces, sq.face_normal, sq.edge_normal, sq.edge_id, sq.ring)
+    np.testing.assert_allclose(sig[0], ref["sig_d"], atol=1e-12)
+    np.testing.assert_allclose(sig[4], ref["sig_n"], atol=1e-12)
+    cc = kernels.closest_candidates(q, cand, sq.points, sq.faces)
+    np.testing.assert_allclose(cc[0], ref["cc_d2"], atol=1e-12)
+    np.testing.assert_allclose(kernels.face_normals(body.points, body.faces, unit=False), ref["fn"], atol=1e-15)
+    np.testing.assert_allclose(kernels.vertex_normals(body.points, body.faces), ref["vn"], atol=1e-14)
+    b = bind(body.points, body.faces, q, k=5)
+    np.testing.assert_allclose(kernels.binding_eval(body.points * 1.05, b.used_faces, b.compact,
+                                                    np.zeros_like(b._buf)), ref["be"], atol=1e-12)
+    gi, gd = kernels.RadiusGrid(body.points, 0.03).nearest(q)
+    np.testing.assert_array_equal(gi, ref["gi"])
+    np.testing.assert_allclose(gd, ref["gd"], rtol=1e-12)
 
 
 def test_assign_rows_equals_fancy_assignment():
@@ -130,11 +166,9 @@ def test_assign_rows_equals_fancy_assignment():
 def test_compiled_guard_matches_numpy_guard_over_frames():
     """The compiled guard frame (hinted nearest-vertex searches, one pass)
     gives the numpy path's pushes frame after frame, suspects included."""
-    from wearfit_usd.animate.penetration_guard import PenetrationGuard
     body = make_body(resolution=0.03).body
     rng = np.random.default_rng(7)
     sel = rng.choice(len(body.points), 3000)
-    from wearfit_usd.geometry.closest import vertex_normals
     n = vertex_normals(body.points, body.faces)
     items = body.points[sel] + n[sel] * rng.uniform(0.0005, 0.02, size=(3000, 1))
     guards = [PenetrationGuard(body.faces, body.points, items, compiled=c) for c in (True, False)]
@@ -155,7 +189,6 @@ def test_compiled_guard_matches_numpy_guard_over_frames():
 
 
 def test_compiled_vertex_normals_match_sparse_incidence_sum():
-    from wearfit_usd.geometry.closest import VertexNormals
     body = make_body(resolution=0.03).body
     vn = VertexNormals(body.faces, len(body.points))
     ref = vn.incidence @ kernels.face_normals(body.points, body.faces, unit=False)
@@ -164,3 +197,101 @@ def test_compiled_vertex_normals_match_sparse_incidence_sum():
     faces = np.array([[0, 1, 2]], dtype=np.int64)  # vertex 3 unused: a zero normal
     out = kernels.vertex_normals(np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [5, 5, 5]]), faces)
     np.testing.assert_allclose(out, [[0, 0, 1], [0, 0, 1], [0, 0, 1], [0, 0, 0]])
+
+
+def test_compiled_normal_sums_and_pseudo_normals_match_numpy():
+    body = make_body(resolution=0.03).body
+    fn = kernels.face_normals(body.points, body.faces)
+    a, b = np.empty_like(body.points), np.empty_like(body.points)
+    kn.face_normal_sums(body.faces, fn, a)
+    kn.face_normal_sums_numpy(body.faces, fn, b)
+    np.testing.assert_allclose(a, b, atol=1e-14)
+    np.testing.assert_allclose(kernels.vertex_normals(body.points, body.faces),
+                               kn.vertex_normals_numpy(body.points, body.faces), atol=1e-14)
+    sq = SurfaceQuery(body.faces, body.points)
+    verts = np.arange(0, len(body.points), 7)
+    ref = kn.vertex_pseudo_normals_numpy(verts, body.points, sq.faces, sq.ring, fn)
+    mine = np.array([kn.vertex_pseudo_normal(v, body.points, sq.faces, sq.ring, fn) for v in verts])
+    np.testing.assert_allclose(mine, ref, atol=1e-12)
+    np.testing.assert_allclose(ref, sq.vertex_normal[verts], atol=1e-12)
+
+
+def test_compiled_closest_signed_matches_numpy_twin():
+    """Signed closest points at faces, edges and corners (points placed on
+    and beside vertices and edge midpoints), both sides of the surface."""
+    body = make_body(resolution=0.03).body
+    sq = SurfaceQuery(body.faces, body.points)
+    rng = np.random.default_rng(4)
+    p, f = body.points, body.faces
+    vn = kernels.vertex_normals(p, f)
+    on_vertex = p[::5] + vn[::5] * rng.uniform(-0.01, 0.01, size=(len(p[::5]), 1))
+    mid = 0.5 * (p[f[::3, 0]] + p[f[::3, 1]])
+    q = np.concatenate([on_vertex, mid + rng.normal(scale=0.004, size=mid.shape),
+                        p[rng.choice(len(p), 400)] + rng.normal(scale=0.02, size=(400, 3))])
+    _, cand = sq.centroid_tree.query(q, k=6)
+    _, vi = sq.vertex_tree.query(q, k=1)
+    cand = np.concatenate([cand, sq.ring[vi]], axis=1)
+    args = (q, cand, sq.points, sq.faces, sq.face_normal, sq.edge_normal, sq.edge_id, sq.ring)
+    mine, ref = kernels.closest_signed(*args), kc.closest_signed_numpy(*args)
+    # distance, point and feature normal (the triangle and barycentrics may
+    # differ where two candidates tie, to rounding, for the same point)
+    for a, b in zip(mine[:2] + mine[4:], ref[:2] + ref[4:]):
+        np.testing.assert_allclose(a, b, atol=1e-12)
+    assert np.mean(mine[2] == ref[2]) > 0.9
+    assert (mine[0] < 0).any() and (mine[0] > 0).any()
+    d2, s, t, inside, tri = kernels.closest_candidates(q, cand, sq.points, sq.faces)
+    corner = ~inside & ((s == 0) | (s == 1)) & ((t == 0) | (t == 1))
+    assert corner.any() and (~inside & ~corner).any() and inside.any()
+    np.testing.assert_allclose(d2, kc.closest_candidates_numpy(q, cand, sq.points, sq.faces)[0], atol=1e-12)
+
+
+def test_compiled_binding_kernels_match_numpy_twins():
+    body = make_body(resolution=0.03).body
+    rng = np.random.default_rng(5)
+    items = body.points[rng.choice(len(body.points), 1500)] + rng.normal(scale=0.01, size=(1500, 3))
+    b = bind(body.points, body.faces, items, k=5)
+    moved = body.points * [1.1, 0.95, 1.05]
+    m = b.compact
+    np.testing.assert_allclose(kernels.binding_eval(moved, b.used_faces, m, np.zeros_like(b._buf)),
+                               kb.binding_eval_numpy(moved, b.used_faces, m, np.zeros_like(b._buf)), atol=1e-12)
+    rows = np.sort(rng.choice(len(items), 900, replace=False)).astype(np.int64)
+    sub = m[rows]
+    sub.sort_indices()
+    outs = [np.full((len(items), 3), 7.0) for _ in range(2)]
+    for fn, out in zip((kernels.binding_eval_rows, kb.binding_eval_rows_numpy), outs):
+        fn(moved, b.used_faces, sub.indptr, sub.indices, sub.data, rows, np.zeros_like(b._buf), out)
+    np.testing.assert_allclose(outs[0], outs[1], atol=1e-12)
+    assert np.all(np.delete(outs[0], rows, axis=0) == 7.0)
+    # the smoothing's right side and the row update
+    free = rng.choice(len(items), 300, replace=False).astype(np.int64)
+    boundary = np.setdiff1d(np.arange(len(items)), free)[:200].astype(np.int64)
+    lap = sp.random(300, 200, density=0.02, random_state=5, format="csr")
+    ref_free, ref_boundary = items[free] * 0.9, items[boundary] * 1.1
+    mass = rng.uniform(0.5, 2.0, size=300)
+    rhs = [np.empty((300, 3)) for _ in range(2)]
+    for fn, r in zip((kernels.diffusion_rhs, kb.diffusion_rhs_numpy), rhs):
+        fn(items, free, boundary, ref_free, ref_boundary, mass, lap.indptr, lap.indices, lap.data, r)
+    np.testing.assert_allclose(rhs[0], rhs[1], atol=1e-12)
+    outs = [items.copy() for _ in range(2)]
+    for fn, out in zip((kernels.add_rows, kb.add_rows_numpy), outs):
+        fn(out, free, ref_free, rhs[0])
+    np.testing.assert_array_equal(outs[0], outs[1])
+
+
+def test_compiled_similarities_match_numpy_twins():
+    rng = np.random.default_rng(8)
+    body = rng.normal(size=(300, 3))
+    items = rng.normal(size=(200, 3))
+    groups = [(gv, rng.choice(300, 40, replace=False), rng.uniform(0.1, 1.0, size=40))
+              for gv in np.array_split(rng.permutation(200)[:150], 3)]
+    moved = body * 1.2 @ np.linalg.qr(rng.normal(size=(3, 3)))[0] + rng.normal(scale=0.01, size=body.shape)
+    for scale in (True, False):
+        parts = RigidParts(groups, body, items, scale=scale)
+        args = (moved, parts._mean, parts._cov, parts._src_mean, parts._src_var, scale)
+        mine, ref = kernels.similarity_transforms(*args), kb.similarity_transforms_numpy(*args)
+        for a, b in zip(mine, ref):
+            np.testing.assert_allclose(a, b, atol=1e-12)
+        outs = [items.copy() for _ in range(2)]
+        for fn, out in zip((kernels.similarity_place, kb.similarity_place_numpy), outs):
+            fn(parts._ref_all, parts._rows, parts._group, *mine, out)
+        np.testing.assert_allclose(outs[0], outs[1], atol=1e-12)

@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..dress.apply import apply
-from ..kernels import compiled as kernels
+from ..kernels import HAVE_NUMBA, add_rows, binding_eval_rows, diffusion_rhs
 
 
 class FrameEvaluator:
@@ -30,14 +30,14 @@ class FrameEvaluator:
         b = plan.binding
         m = b.n_items
         self.n_items = m
-        self.compiled = kernels.HAVE_NUMBA
+        self.compiled = HAVE_NUMBA
         parts = plan.rigid_parts
         self._rigid = parts is not None and len(parts) > 0
         self._free_rows = np.flatnonzero(~plan.rigid_mask()).astype(np.int64)
         # the binding rows the rigid parts do not overwrite (same column layout)
-        self._matrix = b._compact[self._free_rows]
+        self._matrix = b.compact[self._free_rows]
         self._matrix.sort_indices()
-        self._used_faces = b._used_faces
+        self.used_faces = b.used_faces
         self._buf = np.zeros((self._matrix.shape[1], 3))
         sm = plan.smoother
         self._smooth = sm.active
@@ -60,15 +60,14 @@ class FrameEvaluator:
             return apply(plan, p, None, penetration=False)[0]
         out = np.empty((self.n_items, 3))
         m = self._matrix
-        kernels._binding_eval_rows(p, self._used_faces, m.indptr, m.indices, m.data, self._free_rows,
-                                   self._buf, out)
+        binding_eval_rows(p, self.used_faces, m.indptr, m.indices, m.data, self._free_rows, self._buf, out)
         if self._rigid:
             parts = plan.rigid_parts
             parts.place(*parts.transforms(p), out)
         if self._smooth:
             sm = plan.smoother
             lap = self._lap
-            kernels._diffusion_rhs(out, self._free, self._boundary, self._ref_free, self._ref_boundary,
-                                   sm._mass, lap.indptr, lap.indices, lap.data, self._rhs)
-            kernels._add_rows(out, self._free, self._ref_free, np.ascontiguousarray(sm._solver.solve(self._rhs)))
+            diffusion_rhs(out, self._free, self._boundary, self._ref_free, self._ref_boundary,
+                          sm.mass, lap.indptr, lap.indices, lap.data, self._rhs)
+            add_rows(out, self._free, self._ref_free, np.ascontiguousarray(sm.solver.solve(self._rhs)))
         return out

@@ -8,9 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..kernels import compiled as kernels
 from ..geometry.closest import SurfaceQuery, VertexNormals
-from ..kernels.compiled import RadiusGrid
+from ..kernels import HAVE_NUMBA, GuardBody, GuardState, RadiusGrid, face_normal_sums, guard_estimate, guard_frame
 
 
 class PenetrationGuard:
@@ -47,16 +46,16 @@ class PenetrationGuard:
                  compiled: bool | None = None):
         self.faces = np.ascontiguousarray(body_faces, dtype=np.int64)
         self.radius = float(radius)
-        self.compiled = kernels.HAVE_NUMBA if compiled is None else bool(compiled and kernels.HAVE_NUMBA)
+        self.compiled = HAVE_NUMBA if compiled is None else bool(compiled and HAVE_NUMBA)
         self.query = SurfaceQuery(self.faces, body_points0)
         self._grid = None
         if not self.compiled:  # vertex normal sums for the numpy estimate
             self._incidence = VertexNormals(self.faces, len(body_points0)).incidence
         else:
-            self._edge_id = np.ascontiguousarray(self.query._edge_id, dtype=np.int64)
-            self._ring = np.ascontiguousarray(self.query._ring, dtype=np.int64)
+            self._edge_id = np.ascontiguousarray(self.query.edge_id, dtype=np.int64)
+            self._ring = np.ascontiguousarray(self.query.ring, dtype=np.int64)
             # the faces of each edge in index order (-1 padded): edge normals on demand
-            inc = self.query._edge_inc.tocsr()
+            inc = self.query.edge_incidence.tocsr()
             inc.sort_indices()
             counts = np.diff(inc.indptr)
             self._edge_faces = np.full((inc.shape[0], max(int(counts.max()), 1)), -1, dtype=np.int64)
@@ -65,7 +64,7 @@ class PenetrationGuard:
             self._vsum = np.empty((len(body_points0), 3))
             self._normals_of = None  # the body points the normal sums belong to
         c0 = self.query.signed_distance(item_points0)
-        _, self.cand0 = self.query._ctree.query(item_points0, k=4)
+        _, self.cand0 = self.query.centroid_tree.query(item_points0, k=4)
         self.approx0, _ = self.estimate(item_points0)
         self.outside0 = c0 > -margin           # only guard vertices that start outside
         self.target = np.clip(c0, margin, None)  # clearance to restore (>= margin)
@@ -89,9 +88,8 @@ class PenetrationGuard:
             q = np.ascontiguousarray(item_points, dtype=np.float64)
             est = np.empty(len(q))
             vi = np.empty(len(q), dtype=np.int64)
-            kernels._guard_estimate(q, np.full(len(q), -1, dtype=np.int64), body, self._vsum, grid._sorted,
-                                    grid._order, grid._starts, grid._lo, grid._h, grid._dims,
-                                    self.radius ** 2, est, vi)
+            guard_estimate(q, np.full(len(q), -1, dtype=np.int64), self._body(), grid.arrays, self.radius ** 2, est,
+                           vi)
             return est, vi
         vi, _ = grid.nearest(item_points)
         far = vi < 0
@@ -119,8 +117,13 @@ class PenetrationGuard:
         """Per-vertex normal sums of the current body (compiled path), once
         per :meth:`update`."""
         if self._normals_of is not self.query.points:
-            kernels._body_normals(self.faces, self.query.face_normal, self._vsum)
+            face_normal_sums(self.faces, self.query.face_normal, self._vsum)
             self._normals_of = self.query.points
+
+    def _body(self) -> GuardBody:
+        """The current body as the compiled kernels take it (after :meth:`_sum_normals`)."""
+        q = self.query
+        return GuardBody(q.points, self.faces, q.face_normal, self._edge_id, self._edge_faces, self._ring, self._vsum)
 
     def exact(self, idx: np.ndarray, item_points: np.ndarray, nearest_vertex: np.ndarray):
         """Exact signed distance (len(idx),) and closest-feature normal
@@ -130,7 +133,7 @@ class PenetrationGuard:
 
     def _exact_at(self, idx: np.ndarray, points: np.ndarray, nearest_vertex: np.ndarray):
         """:meth:`exact` for vertices idx placed at points (len(idx), 3)."""
-        cand = np.concatenate([self.cand0[idx], self.query._ring[nearest_vertex]], axis=1)
+        cand = np.concatenate([self.cand0[idx], self.query.ring[nearest_vertex]], axis=1)
         res = self.query.closest(points, candidates=cand, ring=False)
         return res["distance"], res["normal"]
 
@@ -143,11 +146,10 @@ class PenetrationGuard:
             self._sum_normals()
             q = np.ascontiguousarray(item_points, dtype=np.float64)
             out = np.empty_like(q)
-            n_inside = kernels._guard_frame(
-                q, self.push, self.direction, self._hint, self.cand0, self.approx0, self.outside0,
-                self.target, self.decay, self.margin, self.DROP, self.query.points, self.faces,
-                self._edge_id, self._ring, self.query.face_normal, self._edge_faces, self._vsum,
-                grid._sorted, grid._order, grid._starts, grid._lo, grid._h, grid._dims, self.radius ** 2, out)
+            state = GuardState(self.cand0, self.approx0, self.outside0, self.target, self.push, self.direction,
+                               self._hint)
+            n_inside = guard_frame(q, state, self._body(), grid.arrays, self.radius ** 2, self.decay, self.margin,
+                                   self.DROP, out)
             return out, int(n_inside)
         push = self.push * self.decay
         pre = item_points + push[:, None] * self.direction

@@ -64,7 +64,7 @@ class Binding:
 
     def __post_init__(self):
         self.n_body = int(self.matrix.shape[1] - len(self.faces))
-        self._used_faces = np.ascontiguousarray(self.faces[self.used], dtype=np.int64)
+        self.used_faces = np.ascontiguousarray(self.faces[self.used], dtype=np.int64)
         # the same matrix with the normal-vertex columns of the used
         # triangles packed right after the body columns: evaluate fills one
         # contiguous (N + U, 3) buffer instead of scattering into N + T rows
@@ -72,10 +72,10 @@ class Binding:
         remap[self.used] = np.arange(len(self.used))
         m = self.matrix.tocoo()
         cols = np.where(m.col < self.n_body, m.col, self.n_body + remap[np.maximum(m.col - self.n_body, 0)])
-        self._compact = sp.csr_matrix((m.data, (m.row, cols)),
+        self.compact = sp.csr_matrix((m.data, (m.row, cols)),
                                       shape=(self.matrix.shape[0], self.n_body + len(self.used)))
-        self._compact.sort_indices()
-        self._buf = np.zeros((self._compact.shape[1], 3))
+        self.compact.sort_indices()
+        self._buf = np.zeros((self.compact.shape[1], 3))
 
     @property
     def n_items(self) -> int:
@@ -102,18 +102,14 @@ class Binding:
         (F, N, 3) -> (F, M, 3). One sparse product per call."""
         p = np.asarray(body_points, dtype=np.float64)
         if p.ndim == 2:
-            if HAVE_NUMBA:
-                return binding_eval(np.ascontiguousarray(p), self._used_faces, self._compact, self._buf)
-            nb = len(p)
-            self._buf[:nb] = p
-            self._buf[nb:] = self.normal_vertices(p, self.used)
-            return self._compact @ self._buf
+            # compiled, or its numpy twin without numba
+            return binding_eval(np.ascontiguousarray(p), self.used_faces, self.compact, self._buf)
         f = p.shape[0]
-        st = np.empty((self._compact.shape[1], f, 3))
+        st = np.empty((self.compact.shape[1], f, 3))
         st[:self.n_body] = p.transpose(1, 0, 2)
         st[self.n_body:] = self.normal_vertices(p, self.used).transpose(1, 0, 2)
         # (N + U, F*3): one product for the whole batch
-        out = self._compact @ st.reshape(len(st), f * 3)
+        out = self.compact @ st.reshape(len(st), f * 3)
         return out.reshape(-1, f, 3).transpose(1, 0, 2)
 
     def clearance_offsets(self) -> np.ndarray:

@@ -90,16 +90,6 @@ class LooseSmoother:
         """Whether any vertex is smoothed (a factorised system exists)."""
         return self.solver is not None
 
-    # the compiled per-frame loops of animate.frame_eval still read these two
-    # names; they go once those lines read ``mass`` and ``solver``
-    @property
-    def _mass(self):
-        return self.mass
-
-    @property
-    def _solver(self):
-        return self.solver
-
     def __call__(self, points: np.ndarray, ref_points: np.ndarray) -> np.ndarray:
         """(M, 3) ``points`` with the displacement from ``ref_points`` (M, 3)
         diffused over the loose vertices (the input itself if none)."""

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from ..kernels import HAVE_NUMBA, _similarity_place, _similarity_transforms, assign_rows
+from ..kernels import similarity_place, similarity_transforms
 
 
 class RigidParts:
@@ -68,39 +68,14 @@ class RigidParts:
     def transforms(self, body_points: np.ndarray):
         """Per group: scale (G,), row-vector rotation (G, 3, 3) and
         translation (G, 3) with dst ~ s * src @ rot + t."""
-        if HAVE_NUMBA:  # one compiled pass (the numpy calls cost ~0.2 ms a frame)
-            g = len(self.groups)
-            s, rot, t = np.empty(g), np.empty((g, 3, 3)), np.empty((g, 3))
-            m, c = self._mean, self._cov
-            _similarity_transforms(np.ascontiguousarray(body_points, dtype=np.float64), m.indptr, m.indices,
-                                   m.data, c.indptr, c.indices, c.data, self._src_mean, self._src_var,
-                                   self.scale, s, rot, t)
-            return s, rot, t
-        md = self._mean @ body_points
-        h = (self._cov @ body_points).reshape(-1, 3, 3)
-        u, sv, vt = np.linalg.svd(h)
-        d = np.sign(np.linalg.det(u @ vt))
-        dm = np.ones((len(d), 3))
-        dm[:, 2] = d
-        rot = (u * dm[:, None, :]) @ vt
-        if self.scale:
-            s = (sv * dm).sum(axis=1) / np.maximum(self._src_var, 1e-300)
-        else:
-            s = np.ones(len(d))
-        t = md - s[:, None] * np.einsum("gi,gij->gj", self._src_mean, rot)
-        return s, rot, t
+        # compiled: one pass (the numpy calls cost ~0.2 ms a frame)
+        return similarity_transforms(body_points, self._mean, self._cov, self._src_mean, self._src_var, self.scale)
 
     def place(self, s: np.ndarray, rot: np.ndarray, t: np.ndarray, points: np.ndarray) -> np.ndarray:
         """Write the groups moved by :meth:`transforms`' output into
         ``points`` (M, 3, C-contiguous float64 for the compiled path), in
         place; returns it."""
-        if HAVE_NUMBA and points.flags.c_contiguous and points.dtype == np.float64:
-            _similarity_place(self._ref_all, self._rows, self._group, s, np.ascontiguousarray(rot),
-                              np.ascontiguousarray(t), points)
-            return points
-        for i, (gv, ref) in enumerate(zip(self.groups, self.ref_points)):
-            assign_rows(points, gv, s[i] * (ref @ rot[i]) + t[i])
-        return points
+        return similarity_place(self._ref_all, self._rows, self._group, s, rot, t, points)
 
     def __call__(self, body_points: np.ndarray, points: np.ndarray) -> np.ndarray:
         if self._mean is None:

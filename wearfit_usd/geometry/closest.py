@@ -16,56 +16,17 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
-from ..kernels import HAVE_NUMBA, closest_candidates, closest_signed
-from ..kernels import face_normals as _compiled_face_normals
-from ..kernels import vertex_normals as _compiled_vertex_normals
+# face_normals and vertex_normals are the kernels' (compiled, or their numpy
+# twins without numba), importable from here as the mesh queries' own
+from ..kernels import (HAVE_NUMBA, closest_candidates, closest_params, closest_signed, corner_normals_numpy,
+                       face_normals, vertex_incidence, vertex_normals, vertex_pseudo_normals_numpy)
 
 # feature codes returned by closest_point_on_triangles
 FACE, EDGE01, EDGE12, EDGE20, VERT0, VERT1, VERT2 = range(7)
 
 
-def _closest_params(app, d20, d21, d00, d01, d11):
-    """Closest point ``a + s ab + t ac`` of triangles to points, from dot
-    products only: app = |p-a|^2, d20 = (p-a).ab, d21 = (p-a).ac,
-    d00 = ab.ab, d01 = ab.ac, d11 = ac.ac (broadcastable arrays).
-
-    Inside the triangle: the plane projection; otherwise the best of the
-    three edge projections clamped to the edge (exact; degenerate triangles
-    are handled through their edges). Returns (s, t, squared distance,
-    inside). On an edge or vertex, s and t are exactly 0 or 1 where clamped.
-    """
-    def dist2(s, t):
-        return np.maximum(app - 2 * s * d20 - 2 * t * d21 + s * s * d00 + 2 * s * t * d01
-                          + t * t * d11, 0.0)
-
-    den = d00 * d11 - d01 * d01
-    ok = den > 1e-12 * d00 * d11
-    sden = np.where(ok, den, 1.0)
-    v = (d11 * d20 - d01 * d21) / sden
-    w = (d00 * d21 - d01 * d20) / sden
-    inside = ok & (v >= 0) & (w >= 0) & (v + w <= 1)
-    # edge ab (t = 0), edge ac (s = 0), edge bc (s = 1 - u, t = u)
-    s_ab = np.clip(d20 / np.where(d00 > 0, d00, 1.0), 0.0, 1.0)
-    t_ac = np.clip(d21 / np.where(d11 > 0, d11, 1.0), 0.0, 1.0)
-    ee = d00 - 2 * d01 + d11
-    u_bc = np.clip((d21 - d20 - d01 + d00) / np.where(ee > 0, ee, 1.0), 0.0, 1.0)
-    zero = np.zeros_like(s_ab)
-    s_best, t_best = s_ab, zero
-    best = dist2(s_ab, zero)
-    for s_e, t_e in ((zero, t_ac), (1.0 - u_bc, u_bc)):
-        d = dist2(s_e, t_e)
-        better = d < best
-        s_best = np.where(better, s_e, s_best)
-        t_best = np.where(better, t_e, t_best)
-        best = np.where(better, d, best)
-    s_out = np.where(inside, v, s_best)
-    t_out = np.where(inside, w, t_best)
-    d_out = np.where(inside, dist2(v, w), best)
-    return s_out, t_out, d_out, inside
-
-
 def _feature(s: np.ndarray, t: np.ndarray, inside: np.ndarray) -> np.ndarray:
-    """Closest-feature code from the (s, t) of :func:`_closest_params`."""
+    """Closest-feature code from the (s, t) of :func:`kernels.closest_params`."""
     feat = np.where(t == 0, np.where(s == 0, VERT0, np.where(s == 1, VERT1, EDGE01)),
                     np.where(s == 0, np.where(t == 1, VERT2, EDGE20), EDGE12))
     return np.where(inside, FACE, feat).astype(np.int8)
@@ -84,32 +45,10 @@ def closest_point_on_triangles(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: n
     def dot(x, y):
         return np.einsum("...i,...i->...", x, y)
 
-    s, t, _, inside = _closest_params(dot(ap, ap), dot(ap, ab), dot(ap, ac), dot(ab, ab),
+    s, t, _, inside = closest_params(dot(ap, ap), dot(ap, ab), dot(ap, ac), dot(ab, ab),
                                       dot(ab, ac), dot(ac, ac))
     closest = a + s[..., None] * ab + t[..., None] * ac
     return closest, np.stack([1.0 - s - t, s, t], axis=-1), _feature(s, t, inside)
-
-
-def face_normals(points: np.ndarray, faces: np.ndarray, unit: bool = True) -> np.ndarray:
-    """(T, 3) triangle normals (unit, or area-weighted x2 if not unit)."""
-    if HAVE_NUMBA:
-        return _compiled_face_normals(points, faces, unit)
-    p0 = points[faces[:, 0]]
-    a = points[faces[:, 1]] - p0
-    b = points[faces[:, 2]] - p0
-    n = np.empty_like(a)
-    n[:, 0] = a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1]
-    n[:, 1] = a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2]
-    n[:, 2] = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
-    if unit:
-        ln = np.sqrt(np.einsum("ij,ij->i", n, n))[:, None]
-        n /= np.where(ln < 1e-300, 1.0, ln)
-    return n
-
-
-def vertex_normals(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """(N, 3) area-weighted unit vertex normals."""
-    return VertexNormals(faces, len(points))(points)
 
 
 class VertexNormals:
@@ -118,16 +57,11 @@ class VertexNormals:
 
     def __init__(self, faces: np.ndarray, n_vertices: int):
         self.faces = np.asarray(faces, dtype=np.int64)
-        t = len(self.faces)
-        self.incidence = sp.csr_matrix(
-            (np.ones(3 * t), (self.faces.ravel(), np.repeat(np.arange(t), 3))), shape=(n_vertices, t))
+        self.incidence = vertex_incidence(self.faces, n_vertices)
 
     def __call__(self, points: np.ndarray) -> np.ndarray:
-        if HAVE_NUMBA:  # one pass over the faces (per animation frame for item normals)
-            return _compiled_vertex_normals(points, self.faces)
-        vn = self.incidence @ face_normals(points, self.faces, unit=False)
-        ln = np.linalg.norm(vn, axis=1, keepdims=True)
-        return vn / np.where(ln < 1e-300, 1.0, ln)
+        # compiled: one pass over the faces (per animation frame for item normals)
+        return vertex_normals(points, self.faces, self.incidence)
 
 
 class SurfaceQuery:
@@ -136,6 +70,13 @@ class SurfaceQuery:
     faces: (T, 3) int triangles, consistently wound (counter-clockwise seen
     from outside). Construct once per topology; call :meth:`update` with
     (N, 3) points whenever the surface moves.
+
+    Topology tables (shared by :meth:`moved_to`): ``edge_id`` (T, 3) the
+    undirected edge of each face's edges 01, 12, 20; ``ring`` (N, w) the
+    triangles around each vertex, padded by repeating the first;
+    ``edge_incidence`` (E, T) CSR edge-face incidence. Per frame:
+    ``points``, ``face_normal`` (T, 3), :attr:`edge_normal`,
+    :attr:`centroid_tree`, :attr:`vertex_tree`.
     """
 
     def __init__(self, faces: np.ndarray, points: np.ndarray | None = None):
@@ -145,15 +86,15 @@ class SurfaceQuery:
         e = np.stack([self.faces[:, [0, 1]], self.faces[:, [1, 2]], self.faces[:, [2, 0]]], axis=1)
         e = np.sort(e.reshape(-1, 2), axis=1)
         key = e[:, 0] * (int(e.max()) + 1 if len(e) else 1) + e[:, 1]  # 1-D keys: much faster unique
-        _, self._edge_id = np.unique(key, return_inverse=True)
-        self._edge_id = self._edge_id.reshape(t, 3)
-        self._n_edges = int(self._edge_id.max()) + 1
+        _, self.edge_id = np.unique(key, return_inverse=True)
+        self.edge_id = self.edge_id.reshape(t, 3)
+        self._n_edges = int(self.edge_id.max()) + 1
         nv = int(self.faces.max()) + 1 if t else 0
-        self._ring = _vertex_face_ring(self.faces, nv)
+        self.ring = _vertex_face_ring(self.faces, nv)
         self._vertex_normal = None
         self._centroids = None
-        self._edge_inc = sp.csr_matrix((np.ones(3 * t), (self._edge_id.ravel(), np.repeat(np.arange(t), 3))),
-                                       shape=(self._n_edges, t))
+        self.edge_incidence = sp.csr_matrix(
+            (np.ones(3 * t), (self.edge_id.ravel(), np.repeat(np.arange(t), 3))), shape=(self._n_edges, t))
         # corner c of face f is column 3 f + c
         self._corner_inc = sp.csr_matrix((np.ones(3 * t), (self.faces.ravel(), np.arange(3 * t))),
                                          shape=(nv, 3 * t))
@@ -188,7 +129,7 @@ class SurfaceQuery:
     def edge_normal(self) -> np.ndarray:
         """(E, 3) edge pseudo-normals: sum of the adjacent faces' unit normals."""
         if self._edge_normal is None:
-            self._edge_normal = self._edge_inc @ self.face_normal
+            self._edge_normal = self.edge_incidence @ self.face_normal
         return self._edge_normal
 
     def _triangle_table(self):
@@ -213,40 +154,27 @@ class SurfaceQuery:
     def vertex_normal(self) -> np.ndarray:
         """(N, 3) angle-weighted vertex pseudo-normals (not unit)."""
         if self._vertex_normal is None:
-            self._vertex_normal = self._corner_inc @ self._corner_normals(np.arange(len(self.faces)))
+            self._vertex_normal = self._corner_inc @ corner_normals_numpy(np.arange(len(self.faces)), self.points,
+                                                                         self.faces, self.face_normal)
         return self._vertex_normal
-
-    def _corner_normals(self, tris: np.ndarray) -> np.ndarray:
-        """(len(tris) * 3, 3) face normal times corner angle, corners in order."""
-        tri = self.points[self.faces[tris]]
-        e1 = np.roll(tri, -1, axis=1) - tri      # corner c: edge to c+1
-        e2 = np.roll(tri, -2, axis=1) - tri      # corner c: edge to c+2
-        cosang = np.einsum("tcj,tcj->tc", e1, e2) / np.maximum(
-            np.linalg.norm(e1, axis=2) * np.linalg.norm(e2, axis=2), 1e-300)
-        ang = np.arccos(np.clip(cosang, -1.0, 1.0))  # (t, 3)
-        return (self.face_normal[tris][:, None, :] * ang[:, :, None]).reshape(-1, 3)
 
     def _vertex_normals_of(self, verts: np.ndarray) -> np.ndarray:
         """Angle-weighted pseudo-normals of a few vertices (through their
         one-ring), without computing them for the whole mesh."""
         if self._vertex_normal is not None:
             return self._vertex_normal[verts]
-        uniq, inv = np.unique(verts, return_inverse=True)
-        ring = self._ring[uniq]                         # (U, w) triangles, padded by repeats
-        first = np.concatenate([np.ones((len(uniq), 1), bool), ring[:, 1:] != ring[:, :1]], axis=1)
-        cn = self._corner_normals(ring.ravel()).reshape(len(uniq), ring.shape[1], 3, 3)
-        corner = self.faces[ring] == uniq[:, None, None]  # (U, w, 3): which corner is the vertex
-        vn = np.einsum("uwc,uwcj->uj", corner * first[:, :, None], cn)
-        return vn[inv]
+        return vertex_pseudo_normals_numpy(verts, self.points, self.faces, self.ring, self.face_normal)
 
     @property
-    def _ctree(self):
+    def centroid_tree(self) -> cKDTree:
+        """KD-tree over the triangle centroids (T, 3) (built on first use after :meth:`update`)."""
         if self._ctree_cache is None:
             self._ctree_cache = cKDTree(self.centroids)
         return self._ctree_cache
 
     @property
-    def _vtree(self):
+    def vertex_tree(self) -> cKDTree:
+        """KD-tree over the points (N, 3) (built on first use after :meth:`update`)."""
         if self._vtree_cache is None:
             self._vtree_cache = cKDTree(self.points)
         return self._vtree_cache
@@ -289,17 +217,17 @@ class SurfaceQuery:
     def _closest_block(self, q, k, ci=None, ring=True, signed=True):
         if ci is None:
             k = min(k, len(self.faces))
-            _, ci = self._ctree.query(q, k=k, workers=_workers(len(q)))
+            _, ci = self.centroid_tree.query(q, k=k, workers=_workers(len(q)))
             if k == 1:
                 ci = ci[:, None]
         if ring:
-            _, vi = self._vtree.query(q, k=1, workers=_workers(len(q)))
-            cand = np.concatenate([ci, self._ring[vi]], axis=1)
+            _, vi = self.vertex_tree.query(q, k=1, workers=_workers(len(q)))
+            cand = np.concatenate([ci, self.ring[vi]], axis=1)
         else:
             cand = ci
         if signed and HAVE_NUMBA:  # one compiled pass: best candidate, feature normal, sign
             d, cp, tri_idx, bary, n = closest_signed(q, cand, self.points, self.faces, self.face_normal,
-                                                     self.edge_normal, self._edge_id, self._ring)
+                                                     self.edge_normal, self.edge_id, self.ring)
             return d, cp, tri_idx, bary, n
         d, cp, bary, feat, tri_idx = self._eval_candidates(q, cand)
         if not signed:
@@ -322,7 +250,7 @@ class SurfaceQuery:
         app = np.einsum("mci,mci->mc", ap, ap)
         d20 = np.einsum("mci,mci->mc", ap, ab[ci])
         d21 = np.einsum("mci,mci->mc", ap, ac[ci])
-        s, t, d2, inside = _closest_params(app, d20, d21, d00[ci], d01[ci], d11[ci])
+        s, t, d2, inside = closest_params(app, d20, d21, d00[ci], d01[ci], d11[ci])
         best = np.argmin(d2, axis=1)
         r = np.arange(len(q))
         f = ci[r, best]
@@ -337,7 +265,7 @@ class SurfaceQuery:
         for code, k in ((EDGE01, 0), (EDGE12, 1), (EDGE20, 2)):
             m = feat == code
             if m.any():
-                n[m] = self.edge_normal[self._edge_id[tri_idx[m], k]]
+                n[m] = self.edge_normal[self.edge_id[tri_idx[m], k]]
         for code, k in ((VERT0, 0), (VERT1, 1), (VERT2, 2)):
             m = feat == code
             if m.any():
