@@ -28,7 +28,7 @@ import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
 from ..geometry.closest import closest_point_on_triangles
-from ..kernels import HAVE_NUMBA, binding_eval
+from ..kernels import binding_eval
 
 
 def triangle_frames(points: np.ndarray, faces: np.ndarray):
