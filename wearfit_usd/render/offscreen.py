@@ -58,7 +58,7 @@ def platform_usable(name: str) -> tuple[bool, str]:
         if _pyopengl_version() < (3, 1, 4):
             v = ".".join(map(str, _pyopengl_version()))
             return False, (f"PyOpenGL {v} cannot create OSMesa contexts (needs >= 3.1.4; "
-                           "pip install 'PyOpenGL==3.1.10')")
+                           f"run: {sys.executable} -m pip install 'PyOpenGL==3.1.10')")
         return True, ""
     if name == "egl":
         if not ctypes.util.find_library("EGL"):
@@ -124,7 +124,9 @@ def create_offscreen(width: int, height: int):
             info("render: using " + plat + " (" + "; ".join(why) + ")")
         debug(f"render: OpenGL platform {plat}")
         return pyrender, r, plat
-    raise RuntimeError("no offscreen OpenGL platform works: " + "; ".join(why))
+    raise RuntimeError("no offscreen OpenGL platform works: " + "; ".join(why)
+                       + " (Debian/Ubuntu: apt-get install libosmesa6 libegl1, then "
+                       + f"{sys.executable} -m pip install 'PyOpenGL==3.1.10'; ./install.sh does both)")
 
 
 # --------------------------------------------------------------------------
