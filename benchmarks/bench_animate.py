@@ -74,11 +74,11 @@ def binding_microbench(repeat: int = 300) -> list[dict]:
     its first vertices up to 15,000 in all (the size the issue asks about),
     and all of it (21k). The LBS-baseline per-frame
     cost (items skinned with weights copied from the body) in the same run."""
+    from wearfit_usd.animate.skin_transfer import transfer_weights
     from wearfit_usd.dress.binding import bind
+    from wearfit_usd.io.usd import read_character
     from wearfit_usd.kernels import HAVE_NUMBA
     from wearfit_usd.motion.skinning import Skinner, skinning_matrices
-    from wearfit_usd.animate.skin_transfer import transfer_weights
-    from wearfit_usd.io.usd import read_character
     ref = read_character(USD_DIR / "ref_male.usda")
     skel = ref.skeleton
     mats = skinning_matrices(skel.bind_world, skel.bind_world)
@@ -96,8 +96,8 @@ def binding_microbench(repeat: int = 300) -> list[dict]:
         ji, jw = transfer_weights(ref.body.points, ref.body.faces, ref.body.joint_indices,
                                   ref.body.joint_weights, items, skel.n_joints)
         skin_items = Skinner(items, ji, jw, skel.n_joints)  # built once, like the binding
-        t_eval = _per_call(lambda: b.evaluate(body), repeat)
-        t_lbs = _per_call(lambda: skin_items(mats), repeat)
+        t_eval = _per_call(lambda b=b: b.evaluate(body), repeat)
+        t_lbs = _per_call(lambda s=skin_items: s(mats), repeat)
         rows.append({"case": f"microbench {label}", "item_vertices": int(len(items)),
                      "compiled": HAVE_NUMBA, "binding_nnz": int(b.matrix.nnz),
                      "bind_eval_us": 1e6 * t_eval, "bind_eval_fps": 1 / t_eval,
@@ -116,6 +116,7 @@ def plan_microbench(ref, largest, layer: np.ndarray, body: np.ndarray, repeat: i
     15,000 vertices, and all of it), by :class:`frame_eval.FrameEvaluator`
     and by ``dress.apply.apply`` (the general path) in the same run."""
     from dataclasses import replace
+
     from wearfit_usd.animate.frame_eval import FrameEvaluator
     from wearfit_usd.dress.apply import apply
     from wearfit_usd.dress.plan import plan
@@ -129,8 +130,8 @@ def plan_microbench(ref, largest, layer: np.ndarray, body: np.ndarray, repeat: i
             items.append(_layer_item(largest, layer, n_layer))
         pl = plan(replace(ref, items=items), k=5)
         ev = FrameEvaluator(pl)
-        t_fast = _per_call(lambda: ev(body), repeat)
-        t_apply = _per_call(lambda: apply(pl, body, ref.body.faces, penetration=False), repeat)
+        t_fast = _per_call(lambda ev=ev: ev(body), repeat)
+        t_apply = _per_call(lambda pl=pl: apply(pl, body, ref.body.faces, penetration=False), repeat)
         rows.append({"case": f"per-frame plan evaluation, {label}", "item_vertices": int(pl.binding.n_items),
                      "rigid_vertices": int(sum(len(g) for g, _, _ in pl.rigid_groups)),
                      "smoothed_vertices": int(len(pl.smoother.free)),
@@ -156,10 +157,10 @@ def _per_call(fn, repeat: int) -> float:
 def run_case(clip: str, ref_name: str, body_name: str, out_dir: Path, mode: str, every: int) -> dict:
     from wearfit_usd.animate.try_on import AnimateOptions, animate
     from wearfit_usd.io.bvh import read_bvh
-    from wearfit_usd.transforms import transform_points
     from wearfit_usd.io.usd import read_character
     from wearfit_usd.io.usd_validate import validate_stage
     from wearfit_usd.progress import set_verbosity
+    from wearfit_usd.transforms import transform_points
     set_verbosity(0)
     t0 = time.perf_counter()
     ref = read_character(USD_DIR / ref_name)
@@ -173,8 +174,9 @@ def run_case(clip: str, ref_name: str, body_name: str, out_dir: Path, mode: str,
     stage, items, body = _read_back(shot, list(range(rep.frames)))
     ours = read_character(shot)
     # our LBS of the written file vs UsdSkel's
-    from wearfit_usd.motion.skinning import skin_mesh
     from pxr import Usd, UsdSkel
+
+    from wearfit_usd.motion.skinning import skin_mesh
     errs = []
     cache = UsdSkel.Cache()
     cache.Populate(UsdSkel.Root(stage.GetPrimAtPath("/Root/Character")), Usd.PrimDefaultPredicate)
@@ -201,6 +203,7 @@ def long_clip(out_dir: Path, frames: int = 10000) -> dict:
     """A `frames`-long clip (the walk repeated) animated at its native 120 fps
     in a subprocess: wall time, peak resident memory and the value clips."""
     import subprocess
+
     from wearfit_usd.io.bvh import read_bvh
     src = BVH_DIR / "cmu_07_01_walk.bvh"
     motion = read_bvh(src)
@@ -208,7 +211,7 @@ def long_clip(out_dir: Path, frames: int = 10000) -> dict:
     start = next(i for i, ln in enumerate(lines) if ln.strip().startswith("Frame Time")) + 1
     rows = lines[start + 1:start + motion.n_frames]  # skip the T-pose frame
     body = [rows[i % len(rows)] for i in range(frames)]
-    header = [("Frames: %d" % frames) if ln.strip().startswith("Frames") else ln for ln in lines[:start]]
+    header = [f"Frames: {frames}" if ln.strip().startswith("Frames") else ln for ln in lines[:start]]
     clip = out_dir / "long_walk.bvh"
     clip.write_text("\n".join(header + body) + "\n")
     shot = out_dir / "animate_long.usdc"

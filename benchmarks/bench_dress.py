@@ -70,12 +70,13 @@ def _proxy_for(item, proxies):
 
 
 def run(full: bool, out_dir: Path) -> list[dict]:
-    from wearfit_usd.geometry.closest import SurfaceQuery
-    from wearfit_usd.dress.metrics import clearance_change, item_rigid_groups, shape_change
-    from benchmarks.peers.mhclo import fit as mh_fit, shape_points, to_internal
-    from wearfit_usd.dress.binding import bind
+    from benchmarks.peers.mhclo import fit as mh_fit
+    from benchmarks.peers.mhclo import shape_points, to_internal
     from wearfit_usd.dress.apply import dress, fitted_body_points
+    from wearfit_usd.dress.binding import bind
+    from wearfit_usd.dress.metrics import clearance_change, item_rigid_groups, shape_change
     from wearfit_usd.dress.plan import plan
+    from wearfit_usd.geometry.closest import SurfaceQuery
     from wearfit_usd.io.usd import read_character
 
     usd = DATA / "usd"
@@ -201,11 +202,12 @@ def _large_outfit(ref, fitted: dict, n_total: int = 15000, repeat: int = 3) -> l
     dressed on each fitted target of ``fitted`` {name: (target, fitted body
     points)}; median of ``repeat`` runs, and the outer layer's fit figures."""
     from dataclasses import replace
-    from wearfit_usd.geometry.closest import SurfaceQuery
-    from wearfit_usd.dress.metrics import clearance_change, shape_change
-    from wearfit_usd.dress.apply import dress
-    from wearfit_usd.dress.plan import plan
+
     from benchmarks.bench_animate import _layer_item, _outer_layer
+    from wearfit_usd.dress.apply import dress
+    from wearfit_usd.dress.metrics import clearance_change, shape_change
+    from wearfit_usd.dress.plan import plan
+    from wearfit_usd.geometry.closest import SurfaceQuery
     suit = max(ref.items, key=lambda m: m.n_points)
     layer = _layer_item(suit, _outer_layer(suit, 0.004), n_total - sum(m.n_points for m in ref.items))
     big = replace(ref, items=list(ref.items) + [layer])
@@ -241,9 +243,11 @@ def _picture(ref, tgt, ours, mh, k1, dest: Path) -> None:
     """Front views side by side: reference, target body, our result, the
     MakeHuman .mhclo fit and the K=1 wrap, items coloured by clearance."""
     import tempfile
+
     from PIL import Image, ImageDraw
-    from wearfit_usd.render import render_frames
+
     from wearfit_usd.io.usd import write_character
+    from wearfit_usd.render import render_frames
     tiles = []
     with tempfile.TemporaryDirectory() as tmp:
         stages = [("reference", ref.source, True)]

@@ -111,6 +111,7 @@ def run(full: bool, out_dir: Path) -> list[dict]:
     """Cases run interleaved in blocks (the machine is shared: load hits
     every case alike); frames/s = 1 / median frame time."""
     import os
+
     from wearfit_usd.render.scene import read_scene
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)

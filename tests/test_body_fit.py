@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from wearfit_usd.errors import GeometryError
 from wearfit_usd.fit.body_fit import FitOptions, fit_body, fit_character
 from wearfit_usd.fit.measures import SurfaceIndex, chamfer
 from wearfit_usd.geometry.closest import closest_point_on_triangles
-from wearfit_usd.errors import GeometryError
 
 
 @pytest.fixture(scope="module")

@@ -8,7 +8,9 @@ from wearfit_usd.geometry.closest import SurfaceQuery, closest_point_on_triangle
 
 
 def test_closest_point_regions_known_answers():
-    a = np.array([0.0, 0, 0]); b = np.array([1.0, 0, 0]); c = np.array([0.0, 1, 0])
+    a = np.array([0.0, 0, 0])
+    b = np.array([1.0, 0, 0])
+    c = np.array([0.0, 1, 0])
     pts = np.array([[0.2, 0.2, 1.0],    # above face
                     [-1.0, -1.0, 0.0],  # vertex a
                     [2.0, -0.5, 0.0],   # vertex b

@@ -59,7 +59,8 @@ def test_the_examples_of_the_issue():
     assert old_query is SurfaceQuery
     sys.modules.pop("wearfit_usd.bvh", None)
     with pytest.warns(DeprecationWarning, match=r"wearfit_usd\.bvh"):
-        from wearfit_usd.bvh import matrix_to_euler as old_euler, read_bvh as old_read
+        from wearfit_usd.bvh import matrix_to_euler as old_euler
+        from wearfit_usd.bvh import read_bvh as old_read
     assert old_read is read_bvh and old_euler is matrix_to_euler
 
 
@@ -89,7 +90,7 @@ def test_redress_names_are_found_in_the_dress_package_modules():
         assert value.__module__.startswith("wearfit_usd.dress.")
         assert not isinstance(value, type(sys))  # the function or class, not a module of that name
     with pytest.raises(AttributeError, match="no_such_name"):
-        redress.no_such_name
+        _ = redress.no_such_name
 
 
 def test_a_missing_module_in_the_search_list_is_skipped():
@@ -104,7 +105,8 @@ def test_a_missing_module_in_the_search_list_is_skipped():
 
 def test_packages_of_the_old_names_re_export_without_warning(recwarn):
     from wearfit_usd.animate import AnimateOptions, animate
-    from wearfit_usd.animate.try_on import AnimateOptions as options, animate as run
+    from wearfit_usd.animate.try_on import AnimateOptions as options
+    from wearfit_usd.animate.try_on import animate as run
     from wearfit_usd.demo import run_demo
     from wearfit_usd.demo.demo import run_demo as demo_run
     from wearfit_usd.kernels import closest_candidates, warm_up  # noqa: F401

@@ -1,7 +1,8 @@
 """The per-frame evaluator gives redress.apply's numbers (binding, rigid
 parts, loose-part smoothing) on the real reference and on the sample body."""
-import numpy as np
 from dataclasses import replace
+
+import numpy as np
 
 from wearfit_usd.animate.frame_eval import FrameEvaluator
 from wearfit_usd.dress.apply import apply

@@ -12,9 +12,9 @@ from wearfit_usd.dress.corrections import SPREAD_RINGS, push_out, spread_correct
 from wearfit_usd.dress.layers import LAYER_MIN_GAP, keep_layers, layer_gaps, layer_order
 from wearfit_usd.dress.plan import plan
 from wearfit_usd.dress.repair import release_misfits
+from wearfit_usd.errors import InputError
 from wearfit_usd.geometry.closest import SurfaceQuery
 from wearfit_usd.geometry.mesh import adjacency, edges, similarity_fit
-from wearfit_usd.errors import InputError
 from wearfit_usd.model import Mesh
 from wearfit_usd.motion.skinning import skin_mesh
 
@@ -182,8 +182,9 @@ def test_layers_keep_their_order_on_a_heavier_body(tmp_path):
     the skirt (hanging from the hips) must stay over it, and the shirt over
     the undershirt, wherever they cover the same spot of the body."""
     from scipy.spatial import cKDTree
-    from wearfit_usd.geometry.closest import SurfaceQuery
+
     from wearfit_usd.demo.samples import make_body, make_items, make_target
+    from wearfit_usd.geometry.closest import SurfaceQuery
     ref = make_body("reference")
     ref.items = make_items(ref)
     target = make_target("short_heavy", ref)
@@ -452,7 +453,7 @@ def test_spread_corrections_on_a_flat_sheet():
     assert d[:, 2].min() >= -1e-12 and d[:, 2].max() <= 0.010 + 1e-12
     rings = np.abs(grid[:, :2] - grid[centre, :2]).max(axis=1) / 0.01  # grid rings of the diagonal mesh
     assert np.all(d[rings > SPREAD_RINGS + 1] == 0.0)
-    assert spread[centre] == False and spread[side] and spread.sum() > 50
+    assert not spread[centre] and spread[side] and spread.sum() > 50
     # fixed vertices (a rigid part) are left alone
     fixed = np.zeros(len(grid), bool)
     fixed[side] = True

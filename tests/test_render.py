@@ -154,8 +154,8 @@ def animated_stage(tmp_path_factory):
 
 
 def test_animated_stage_frames_differ(animated_stage):
-    from wearfit_usd.render.scene import read_scene
     from wearfit_usd.render.preview import render_scene
+    from wearfit_usd.render.scene import read_scene
     scene = read_scene(animated_stage)
     assert scene.times == [0.0, 1.0, 2.0]
     arm = next(m for m in scene.meshes if m.name == "ArmMesh")
@@ -176,6 +176,7 @@ def test_animated_stage_frames_differ(animated_stage):
 
 def test_gif_and_mp4_written_and_readable(animated_stage, tmp_path):
     import imageio.v3 as iio
+
     from wearfit_usd.render.preview import render_to_dir
     out = tmp_path / "out"
     res = render_to_dir(animated_stage, out, size=(160, 120), gif=True, mp4=True,
@@ -221,8 +222,8 @@ def _write_walker(path, travel=3.0, n=10, static=False):
     time-sampled points move ``travel`` metres along +x over ``n`` frames
     (10 time codes per second) with a 5 cm side-to-side sway;
     ``static``: one unanimated pose."""
-    from pxr import Usd, UsdGeom, Vt
     import trimesh
+    from pxr import Usd, UsdGeom, Vt
     stage = Usd.Stage.CreateNew(str(path))
     UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
     UsdGeom.SetStageMetersPerUnit(stage, 1.0)
@@ -377,8 +378,8 @@ def test_heatmap_colours_follow_clearance(tmp_path):
     fg_l = left[np.abs(left - BG).max(1) > 12]
     fg_r = right[np.abs(right - BG).max(1) > 12]
     assert len(fg_l) > 50 and len(fg_r) > 50
-    l, r = fg_l.mean(0), fg_r.mean(0)
-    assert l[0] > l[2] + 40, l   # red dominates where the shell touches
+    lm, r = fg_l.mean(0), fg_r.mean(0)
+    assert lm[0] > lm[2] + 40, lm   # red dominates where the shell touches
     assert r[2] > r[0] + 40, r   # blue dominates where it is ~6 cm away
     # the colour map itself: tight -> red, loose -> blue
     tight, loose = colormap(np.array([0.0, 0.06]))
@@ -404,6 +405,7 @@ def test_heatmap_against_reference_is_neutral_for_itself(tmp_path):
 
 def test_errors_empty_stage_missing_file_and_bad_frames(tmp_path, animated_stage):
     from pxr import Usd, UsdGeom
+
     from wearfit_usd.cli import main
     from wearfit_usd.errors import InputError
     from wearfit_usd.render.preview import render_frames

@@ -1,8 +1,8 @@
 """Batched rigid parts: exact on a known similarity, equal to one Umeyama fit per group."""
 import numpy as np
 
-from wearfit_usd.geometry.mesh import similarity_fit
 from wearfit_usd.dress.rigid_parts import RigidParts
+from wearfit_usd.geometry.mesh import similarity_fit
 from wearfit_usd.transforms import axis_rotation
 
 

@@ -4,12 +4,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from wearfit_usd.motion.skinning import skin_mesh, skin_points
-from wearfit_usd.transforms import make_matrix, matrix_from_quat, transform_points
-from wearfit_usd.io.usd import open_stage, read_character
-
 from tests.conftest import USD_DIR
 from tests.usdskel_reference import author_animation, usdskel_skinned_points
+from wearfit_usd.io.usd import open_stage, read_character
+from wearfit_usd.motion.skinning import skin_mesh, skin_points
+from wearfit_usd.transforms import make_matrix, matrix_from_quat, transform_points
 
 BODIES = sorted(p.name for p in USD_DIR.glob("*.usd*"))
 

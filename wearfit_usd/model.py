@@ -69,7 +69,7 @@ class Mesh:
     def is_skinned(self) -> bool:
         return self.joint_indices is not None
 
-    def copy_with_points(self, points: np.ndarray) -> "Mesh":
+    def copy_with_points(self, points: np.ndarray) -> Mesh:
         """Same topology and attributes, new (N, 3) points."""
         m = copy.copy(self)
         m.points = np.asarray(points, dtype=np.float64)

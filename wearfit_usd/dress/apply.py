@@ -27,15 +27,16 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
+from ..fit.body_fit import fit_character
+from ..geometry.closest import SurfaceQuery, VertexNormals
+from ..model import Character, Mesh
+from ..progress import debug, info
 from .binding import local_signed_distance
 from .corrections import SPREAD_CLEARANCE_DRIFT, push_out, spread_corrections
 from .layers import keep_layers
 from .plan import DressPlan, plan
 from .repair import release_misfits, untangle_items
-from ..fit.body_fit import fit_character
-from ..geometry.closest import SurfaceQuery, VertexNormals
-from ..model import Character, Mesh
-from ..progress import debug, info
+
 
 def fitted_body_points(ref: Character, target: Character) -> np.ndarray:
     """The reference body topology deformed onto the target (N_ref, 3), by

@@ -18,7 +18,9 @@ from ..geometry.closest import SurfaceQuery
 from ..model import Mesh
 
 LAYER_RADIUS = 0.03   # m: items closer than this may lie over one another
-LAYER_MIN_GAP = 0.005  # m: separation kept between layers (or their reference gap if smaller): covers the sag of a coarse outer layer between its vertices
+# m: separation kept between layers (or their reference gap if smaller): covers the sag of a coarse outer
+# layer between its vertices
+LAYER_MIN_GAP = 0.005
 
 
 def layer_pairs(items: list[Mesh], offsets: np.ndarray, points: np.ndarray, clearance: np.ndarray,
@@ -33,7 +35,7 @@ def layer_pairs(items: list[Mesh], offsets: np.ndarray, points: np.ndarray, clea
     outer, inner, gap = [], [], []
     trees = [cKDTree(points[a:b]) for a, b in zip(offsets[:-1], offsets[1:])]
     for i, (a, b) in enumerate(zip(offsets[:-1], offsets[1:])):
-        for j, (c, d) in enumerate(zip(offsets[:-1], offsets[1:])):
+        for j, c in enumerate(offsets[:-1]):
             if i == j:
                 continue
             dist, near = trees[j].query(points[a:b], k=1, distance_upper_bound=radius)

@@ -7,10 +7,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import untangle as U
-from .body_stretch import stretch_range
 from ..geometry.closest import SurfaceQuery
 from ..geometry.mesh import edges, nondegenerate, similarity_fit
+from . import untangle as U
+from .body_stretch import stretch_range
 
 
 def _frames(points: np.ndarray, faces: np.ndarray) -> np.ndarray:

@@ -26,16 +26,16 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from . import regions as R
-from .binding import Binding, bind, rebind
-from .corrections import LooseSmoother, looseness
-from .layers import layer_gaps, layer_order
-from .rigid_parts import RigidParts
 from ..errors import GeometryError, InputError
 from ..geometry.closest import SurfaceQuery
 from ..geometry.mesh import adjacency, components, edges, nondegenerate
 from ..model import Character, Mesh
 from ..progress import warn
+from . import regions as R
+from .binding import Binding, bind, rebind
+from .corrections import LooseSmoother, looseness
+from .layers import layer_gaps, layer_order
+from .rigid_parts import RigidParts
 
 FAR_FROM_BODY = 0.5  # m: items farther than this from the body are suspicious
 DEGENERATE_BODY_REL = 1e-10  # body triangles below this x the median doubled area are not bound to

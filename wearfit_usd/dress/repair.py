@@ -13,12 +13,12 @@ from dataclasses import replace
 
 import numpy as np
 
+from ..geometry.closest import SurfaceQuery
 from . import untangle as U
 from .body_stretch import skin_range, stretch_range, vertex_stretch
 from .corrections import off_skin
 from .layers import keep_layers
 from .plan import DressPlan
-from ..geometry.closest import SurfaceQuery
 
 UNTANGLE_CLEARANCE_DRIFT = 0.001  # m: the untangle may worsen an item's median clearance error by at most this
 RIGID_RELEASE = 0.05  # rigid groups with more of their vertices newly > 1 mm inside the target move freely

@@ -93,7 +93,7 @@ class FitOptions:
     target_label: str = "<target>"
 
     @classmethod
-    def from_any(cls, options) -> "FitOptions":
+    def from_any(cls, options) -> FitOptions:
         if options is None:
             return cls()
         if isinstance(options, cls):

@@ -12,14 +12,24 @@ the points (metres internally).
 from __future__ import annotations
 
 import copy
+
 import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
 # face_normals and vertex_normals are the kernels' (compiled, or their numpy
 # twins without numba), importable from here as the mesh queries' own
-from ..kernels import (HAVE_NUMBA, closest_candidates, closest_params, closest_signed, corner_normals_numpy,
-                       face_normals, vertex_incidence, vertex_normals, vertex_pseudo_normals_numpy)
+from ..kernels import (
+    HAVE_NUMBA,
+    closest_candidates,
+    closest_params,
+    closest_signed,
+    corner_normals_numpy,
+    face_normals,
+    vertex_incidence,
+    vertex_normals,
+    vertex_pseudo_normals_numpy,
+)
 
 # feature codes returned by closest_point_on_triangles
 FACE, EDGE01, EDGE12, EDGE20, VERT0, VERT1, VERT2 = range(7)
@@ -102,14 +112,14 @@ class SurfaceQuery:
         if points is not None:
             self.update(points)
 
-    def moved_to(self, points: np.ndarray) -> "SurfaceQuery":
+    def moved_to(self, points: np.ndarray) -> SurfaceQuery:
         """A new query on the same triangles at (N, 3) ``points``, sharing
         this one's topology tables (edges, rings, incidences) instead of
         building them again; this query is left as it is."""
         other = copy.copy(self)
         return other.update(points)
 
-    def update(self, points: np.ndarray) -> "SurfaceQuery":
+    def update(self, points: np.ndarray) -> SurfaceQuery:
         """Move the surface to (N, 3) points. Face normals are recomputed
         now; edge and vertex pseudo-normals, the per-triangle tables of the
         numpy closest-point path and the KD-trees lazily, for what the next

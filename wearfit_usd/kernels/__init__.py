@@ -14,14 +14,27 @@ WEARFIT_NO_NUMBA=1 to force the numpy paths).
 Callers import the kernels from this package; which module of it holds a
 kernel is the package's own business.
 """
-from .binding import (add_rows, assign_rows, binding_eval, binding_eval_rows, diffusion_rhs, similarity_place,
-                      similarity_transforms)
+from .binding import (
+                      add_rows,
+                      assign_rows,
+                      binding_eval,
+                      binding_eval_rows,
+                      diffusion_rhs,
+                      similarity_place,
+                      similarity_transforms,
+)
 from .closest import closest_candidates, closest_params, closest_signed
 from .grid import GridArrays, RadiusGrid
 from .guard import GuardBody, GuardState, guard_estimate, guard_frame
 from .jit import HAVE_NUMBA
-from .normals import (corner_normals_numpy, face_normal_sums, face_normals, vertex_incidence, vertex_normals,
-                      vertex_pseudo_normals_numpy)
+from .normals import (
+                      corner_normals_numpy,
+                      face_normal_sums,
+                      face_normals,
+                      vertex_incidence,
+                      vertex_normals,
+                      vertex_pseudo_normals_numpy,
+)
 from .warm import warm_up
 
 __all__ = ["HAVE_NUMBA", "GridArrays", "GuardBody", "GuardState", "RadiusGrid", "add_rows", "assign_rows",

@@ -202,7 +202,7 @@ class RadiusGrid:
         self._starts_buf = None
         self.update(points)
 
-    def update(self, points: np.ndarray) -> "RadiusGrid":
+    def update(self, points: np.ndarray) -> RadiusGrid:
         """Rebuild the grid over new points (same count or not), reusing the
         buffers of the previous build (fresh arrays cost more page faults
         than the counting sort itself)."""

@@ -6,8 +6,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from .binding import (add_rows, binding_eval, binding_eval_rows, diffusion_rhs, similarity_place,
-                      similarity_transforms)
+from .binding import add_rows, binding_eval, binding_eval_rows, diffusion_rhs, similarity_place, similarity_transforms
 from .closest import closest_candidates, closest_signed
 from .grid import RadiusGrid
 from .guard import GuardBody, GuardState, guard_estimate, guard_frame

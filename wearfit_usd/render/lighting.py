@@ -40,8 +40,8 @@ def light_poses(view: View, rig: LightRig = DEFAULT_RIG) -> list[np.ndarray]:
     back = np.asarray(view.eye, float) - np.asarray(view.target, float)
     cam_yaw = float(np.degrees(np.arctan2(back[0], back[2])))
     out = []
-    for l in rig.lights:
-        d = direction(cam_yaw + l.yaw, l.elevation)
+    for light in rig.lights:
+        d = direction(cam_yaw + light.yaw, light.elevation)
         out.append(look_at(np.asarray(view.target, float) + d, view.target))
     return out
 

@@ -39,7 +39,7 @@ _PYRENDER = None                # the imported module
 def _shim_numpy() -> None:
     """numpy 2 removed ``np.infty``, which pyrender 0.1.45 still uses."""
     if not hasattr(np, "infty"):
-        setattr(np, "infty", np.inf)
+        np.infty = np.inf
 
 
 def _pyopengl_version() -> tuple[int, ...]:
@@ -222,8 +222,8 @@ class Renderer:
                               ambient_light=np.full(3, lights.ambient, np.float32))
         self.rig = lights
         self._lights = [self.scene.add(pr.DirectionalLight(color=np.ones(3, np.float32),
-                                                           intensity=float(l.intensity)))
-                        for l in lights.lights]
+                                                           intensity=float(light.intensity)))
+                        for light in lights.lights]
         self._camera = None
         self._cam_node = None
         self._entries: list[_Entry] = []
@@ -364,8 +364,7 @@ class Renderer:
         cb, db = getattr(rr, "_main_cb_ms", None), getattr(rr, "_main_db_ms", None)
         if cb is None or db is None:
             return False  # OSMesa: draws into the default framebuffer, no MSAA
-        from OpenGL.GL import (GL_DEPTH_COMPONENT24, GL_RENDERBUFFER, GL_RGBA,
-                               glBindRenderbuffer, glRenderbufferStorage)
+        from OpenGL.GL import GL_DEPTH_COMPONENT24, GL_RENDERBUFFER, GL_RGBA, glBindRenderbuffer, glRenderbufferStorage
         try:
             self._osr._platform.make_current()
             glBindRenderbuffer(GL_RENDERBUFFER, cb)

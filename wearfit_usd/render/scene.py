@@ -174,6 +174,7 @@ def select_times(time_range: tuple[float, float], frames, path) -> list[float]:
 
 def _triangles(prim, path, time):
     from pxr import UsdGeom
+
     from ..io.usd import triangulate
     mesh = UsdGeom.Mesh(prim)
     counts = mesh.GetFaceVertexCountsAttr().Get(time)
@@ -209,6 +210,7 @@ def read_scene(path, frames=None, progress_desc: str | None = None) -> SceneDesc
 
     Raises InputError (missing file, no meshes, frames outside the range)."""
     from pxr import Usd, UsdGeom, UsdSkel, Vt
+
     from ..io.usd import open_stage
 
     if isinstance(frames, str):
