@@ -85,6 +85,12 @@ def test_garment_is_a_clean_open_mesh(ref, garments, name):
     e = edges(m.faces)
     length = np.linalg.norm(m.points[e[:, 0]] - m.points[e[:, 1]], axis=1)
     assert length.min() > 0.05 * np.median(length) and length.min() > 5e-4
+    # no needles either: every corner at least 1 degree (the dressing measures' "degenerate")
+    t = m.points[m.faces]
+    for a, b, c in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):
+        u, v = t[:, b] - t[:, a], t[:, c] - t[:, a]
+        cos = np.sum(u * v, 1) / (np.linalg.norm(u, axis=1) * np.linalg.norm(v, axis=1))
+        assert np.degrees(np.arccos(np.clip(cos, -1, 1))).min() > 1.0
     # faces point away from the body: outward from the vertical axis for most of them
     n = tm.face_normals
     out = tm.triangles_center - [0.0, 0.0, m.points[:, 2].mean()]

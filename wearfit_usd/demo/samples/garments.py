@@ -29,7 +29,7 @@ from .implicit import Solid, relax_on_surface
 from .items import item_mesh, offset_shell
 
 #: clearance of each garment above the skin, metres (lower bound of the offset)
-GARMENT_CLEARANCE = {"dress": 0.012, "pencil_skirt": 0.008, "suit": 0.012, "coat": 0.03,
+GARMENT_CLEARANCE = {"dress": 0.012, "pencil_skirt": 0.008, "suit": 0.012, "coat": 0.018,
                      "long_hair": 0.006}
 #: garments hanging free of the legs or the back (loose parts in issue 17's sense)
 LOOSE_GARMENTS = ("dress", "coat", "long_hair")
@@ -191,6 +191,37 @@ def drop_slivers(points: np.ndarray, quads: np.ndarray, rel_area: float = 0.02):
     return points[used], remap[q]
 
 
+def _min_angles(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """(T,) smallest corner angle (radians) of triangles with corners (T, 3) each."""
+    def corner(p, q, r):
+        u, v = q - p, r - p
+        cos = np.sum(u * v, 1) / np.maximum(np.linalg.norm(u, axis=1) * np.linalg.norm(v, axis=1), 1e-300)
+        return np.arccos(np.clip(cos, -1.0, 1.0))
+    return np.minimum(np.minimum(corner(a, b, c), corner(b, c, a)), corner(c, a, b))
+
+
+def fattest_split(points: np.ndarray, quads: np.ndarray) -> np.ndarray:
+    """Rotate each quad so that its fan diagonal (v0-v2) is the one whose two
+    triangles have the larger smallest angle (no needle triangles where three
+    corners lie nearly in a line).
+
+    Parameters
+    ----------
+    points : (V, 3); quads : (Q, 4) int.
+
+    Returns
+    -------
+    (Q, 4) the same quads, some started one corner later (winding kept).
+    """
+    p = [points[quads[:, i]] for i in range(4)]
+    keep = np.minimum(_min_angles(p[0], p[1], p[2]), _min_angles(p[0], p[2], p[3]))
+    turn = np.minimum(_min_angles(p[1], p[2], p[3]), _min_angles(p[1], p[3], p[0]))
+    out = quads.copy()
+    flip = turn > keep
+    out[flip] = np.roll(quads[flip], -1, axis=1)
+    return out
+
+
 def _support(points: np.ndarray, ys: np.ndarray, dirs: np.ndarray, centre: np.ndarray,
              band: float) -> np.ndarray:
     """(R, C) support function of the body's horizontal slices: for each
@@ -258,8 +289,8 @@ def _shell_with_skirt(name: str, body: Mesh, shell_body: Mesh, lay, c: float, pa
     tt = (hem_y - ys) / (hem_y - bottom_y)
     rows = _hanging_rows(top, centre, ys, body, lay.solid, c, flare * tt ** 1.3, taper, 0.025 * s)
     ids = np.vstack([hem, len(pts) + np.arange(rows.shape[0] * rows.shape[1]).reshape(rows.shape[:2])])
-    quads = np.vstack([q, _ring_quads(ids)])
     allp = np.vstack([pts, rows.reshape(-1, 3)])
+    quads = fattest_split(allp, np.vstack([q, _ring_quads(ids)]))  # offsetting changed the quads' shapes
     return _mesh(name, allp, [quads], centre[2])
 
 
