@@ -8,8 +8,9 @@ import pytest
 import trimesh
 
 from wearfit_usd.geometry.closest import signed_distance
-from wearfit_usd.demo.samples import (CLEARANCE, PRESETS, REMESHED_TARGETS, SAME_TOPOLOGY_TARGETS,
-                                 make_body, make_items, make_target, write_sample_set)
+from wearfit_usd.demo.samples import (CLEARANCE, GARMENT_SETS, PRESETS, REMESHED_TARGETS,
+                                      SAME_TOPOLOGY_TARGETS, make_body, make_items, make_outfit,
+                                      make_target, write_sample_set)
 from wearfit_usd.demo.samples.body import JOINT_NAMES, layout
 from wearfit_usd.motion.skinning import skin_mesh
 from wearfit_usd.transforms import make_matrix, matrix_from_quat
@@ -191,9 +192,10 @@ def test_item_shapes(ref, items):
 def test_sample_set_round_trips_through_usd(tmp_path):
     from wearfit_usd.io.usd import read_character
     paths = write_sample_set(tmp_path, targets=["tall_thin", "curvy_remeshed"])
-    assert set(paths) == {"reference", "target_tall_thin", "target_curvy_remeshed"}
+    assert set(paths) == {"reference", "target_tall_thin", "target_curvy_remeshed"} | set(GARMENT_SETS)
     ref = make_body("reference")
     ref_items = {m.name: m for m in make_items(ref)}
+    _same_items(read_character(paths["ref_loose"]), make_outfit(ref, "ref_loose"))
     back = read_character(paths["reference"])
     assert np.abs(back.body.points - ref.body.points).max() < 1e-5
     assert np.array_equal(back.body.face_vertex_indices, ref.body.face_vertex_indices)
@@ -202,8 +204,22 @@ def test_sample_set_round_trips_through_usd(tmp_path):
     assert np.allclose(skin_mesh(back.body, back.skeleton, back.skeleton.bind_world),
                        back.body.points, atol=1e-5)
     assert {m.name for m in back.items} == set(ref_items)
+    _same_items(back, ref_items.values())
+    for key in ("target_tall_thin", "target_curvy_remeshed"):
+        t = read_character(paths[key])
+        assert t.items == [] and t.skeleton is not None
+    t = read_character(paths["target_tall_thin"])
+    assert np.array_equal(t.body.face_vertex_indices, ref.body.face_vertex_indices)
+    only = write_sample_set(tmp_path / "few", targets=[], garment_sets=["ref_suit"])
+    assert set(only) == {"reference", "ref_suit"}
+
+
+def _same_items(back, items):
+    """The items read back from a stage equal the ones written."""
+    src_items = {m.name: m for m in items}
+    assert [m.name for m in back.items] == list(src_items)
     for m in back.items:
-        src = ref_items[m.name]
+        src = src_items[m.name]
         assert np.abs(m.points - src.points).max() < 1e-5, m.name
         assert np.array_equal(m.face_vertex_counts, src.face_vertex_counts)
         assert np.array_equal(m.face_vertex_indices, src.face_vertex_indices)
@@ -215,11 +231,6 @@ def test_sample_set_round_trips_through_usd(tmp_path):
         if st0.indices is not None:
             assert np.array_equal(st.indices, st0.indices)
         assert np.allclose(m.display_color, src.display_color, atol=1e-6)
-    for key in ("target_tall_thin", "target_curvy_remeshed"):
-        t = read_character(paths[key])
-        assert t.items == [] and t.skeleton is not None
-    t = read_character(paths["target_tall_thin"])
-    assert np.array_equal(t.body.face_vertex_indices, ref.body.face_vertex_indices)
 
 
 # --------------------------------------------------------------------------

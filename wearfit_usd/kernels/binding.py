@@ -127,7 +127,7 @@ def _similarity_transforms(points, mean_ptr, mean_idx, mean_w, cov_ptr, cov_idx,
 def _diffusion_rhs(points, free, boundary, ref_free, ref_boundary, mass, indptr, indices, data, rhs):
     """rhs (U, 3) = mass (U,) * (points[free] - ref_free)
     + A @ (points[boundary] - ref_boundary) with A (U, B) in CSR: the right
-    side of :class:`dress.redress.LooseSmoother`'s system."""
+    side of :class:`dress.corrections.LooseSmoother`'s system."""
     for r in range(free.shape[0]):
         v = free[r]
         m = mass[r]

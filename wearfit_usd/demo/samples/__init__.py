@@ -6,9 +6,10 @@ Public API::
     make_body(params=None, resolution=0.014) -> Character   # mesh from scratch
     make_target(name, reference=None) -> Character          # a preset target body
     make_items(body) -> list[Mesh]                           # items on a sample body
-    write_sample_set(out_dir) -> dict[str, Path]             # reference + targets (.usda)
+    make_garments(body) -> list[Mesh]                        # dress, coat, hair... (issue 17)
+    write_sample_set(out_dir) -> dict[str, Path]             # references + targets (.usda)
     motion_path(name) -> Path                                # packaged .bvh clip
-    PRESETS, SAME_TOPOLOGY_TARGETS, REMESHED_TARGETS, BodyParams, CLIPS
+    PRESETS, SAME_TOPOLOGY_TARGETS, REMESHED_TARGETS, BodyParams, CLIPS, GARMENT_SETS
 
 Targets in ``SAME_TOPOLOGY_TARGETS`` share the reference's faces vertex for
 vertex (morphed through the parametric model); ``REMESHED_TARGETS`` are
@@ -22,11 +23,23 @@ from pathlib import Path
 from ...io.usd import write_character
 from .body import (PRESETS, REMESHED_TARGETS, SAME_TOPOLOGY_TARGETS, BodyParams, body_params,
                    make_body, morph_body)
+from .garments import GARMENT_CLEARANCE, LOOSE_GARMENTS, make_garments
 from .items import CLEARANCE, make_items
 
 __all__ = ["PRESETS", "SAME_TOPOLOGY_TARGETS", "REMESHED_TARGETS", "BodyParams", "CLEARANCE",
-           "CLIPS", "body_params", "make_body", "make_target", "make_items", "write_sample_set",
+           "GARMENT_CLEARANCE", "GARMENT_SETS", "LOOSE_GARMENTS", "CLIPS", "body_params", "make_body",
+           "make_target", "make_items", "make_garments", "make_outfit", "write_sample_set",
            "motion_path"]
+
+#: the garment references (one stage each, on the reference body): their
+#: garments (:data:`GARMENT_CLEARANCE`) and items (:data:`CLEARANCE`) worn
+#: under or with them. ``ref_loose`` holds the loose parts the demo animates.
+GARMENT_SETS = {
+    "ref_loose": (["dress", "long_hair"], ["shoes"]),
+    "ref_coat": (["coat"], ["trousers", "shoes"]),
+    "ref_suit": (["suit"], ["shoes"]),
+    "ref_pencil": (["pencil_skirt"], ["undershirt", "shoes"]),
+}
 
 
 def __getattr__(name):
@@ -51,18 +64,30 @@ def make_target(name: str, reference=None):
     return morph_body(reference if reference is not None else make_body("reference"), name)
 
 
-def write_sample_set(out_dir, targets: list[str] | None = None) -> dict[str, Path]:
+def make_outfit(body, set_name: str) -> list:
+    """The items of :data:`GARMENT_SETS` ``[set_name]`` made on ``body``:
+    the items worn under or with the garments first, then the garments."""
+    garments, items = GARMENT_SETS[set_name]
+    return make_items(body, items) + make_garments(body, garments)
+
+
+def write_sample_set(out_dir, targets: list[str] | None = None,
+                     garment_sets: list[str] | None = None) -> dict[str, Path]:
     """Write ``reference.usda`` (body + every item, each with its display
-    colour) and ``target_<name>.usda`` (bodies only) into ``out_dir``.
+    colour), one ``<set>.usda`` per garment set (:data:`GARMENT_SETS`; the
+    reference body wearing that outfit) and ``target_<name>.usda`` (bodies
+    only) into ``out_dir``.
 
     Stages are Y up, metres, 30 time codes/s. Returns {"reference": path,
-    "target_<name>": path, ...}.
+    "ref_loose": path, ..., "target_<name>": path, ...}.
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     ref = make_body("reference")
     ref.items = make_items(ref)
     paths = {"reference": write_character(out / "reference.usda", ref)}
+    for set_name in (list(GARMENT_SETS) if garment_sets is None else garment_sets):
+        paths[set_name] = write_character(out / f"{set_name}.usda", ref, items=make_outfit(ref, set_name))
     names = list(SAME_TOPOLOGY_TARGETS) + list(REMESHED_TARGETS) if targets is None else targets
     for name in names:
         tgt = make_target(name, ref)

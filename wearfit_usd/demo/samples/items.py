@@ -35,13 +35,18 @@ COLORS = {
     "skirt": (0.7, 0.2, 0.3), "shoes": (0.35, 0.2, 0.1), "hat": (0.3, 0.25, 0.2),
     "glasses": (0.05, 0.05, 0.05), "watch": (0.75, 0.7, 0.3), "necklace": (0.85, 0.75, 0.2),
     "hair_cap": (0.3, 0.18, 0.08),
+    # the garments of :mod:`.garments`
+    "dress": (0.18, 0.5, 0.45), "pencil_skirt": (0.15, 0.15, 0.18), "suit": (0.42, 0.36, 0.3),
+    "coat": (0.55, 0.45, 0.3), "long_hair": (0.45, 0.28, 0.12),
 }
 
 
 # --------------------------------------------------------------------------
 # mesh building
 
-def _mesh(name: str, points: np.ndarray, polys: list[np.ndarray], st: Primvar) -> Mesh:
+def item_mesh(name: str, points: np.ndarray, polys: list[np.ndarray], st: Primvar) -> Mesh:
+    """An item :class:`Mesh` from polygon blocks ``polys`` [(P, arity) vertex
+    indices], its ``st`` primvar and the colour of ``name`` in :data:`COLORS`."""
     counts = np.concatenate([np.full(len(p), p.shape[1], dtype=np.int64) for p in polys if len(p)])
     fvi = np.concatenate([p.ravel() for p in polys if len(p)]).astype(np.int64)
     faces, t2p = triangulate(counts, fvi)
@@ -144,7 +149,7 @@ def _grid_mesh(name: str, parts: list[tuple]) -> Mesh:
     st = Primvar("st", "texCoord2f[]", "faceVarying", np.vstack(all_uv).astype(np.float32),
                  np.concatenate(all_uvi).astype(np.int64))
     # group polygons by arity is not needed: counts follow the list order
-    return _mesh(name, np.vstack(all_pts), all_polys, st)
+    return item_mesh(name, np.vstack(all_pts), all_polys, st)
 
 
 def _frames_along(path: np.ndarray, closed: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -181,12 +186,27 @@ def _tube(path: np.ndarray, radius: float, sides: int = 8, closed: bool = False)
 
 def _offset_patch(name: str, body: Mesh, solid: Solid, clearance: float, parts, snap: float,
                   keep_components: int = 1) -> Mesh:
+    """:func:`offset_shell` as an item with cylindrical vertex UVs."""
+    pts, q = offset_shell(body, solid, clearance, parts, snap, keep_components)
+    # cylindrical UVs about the body's vertical axis
+    u = np.arctan2(pts[:, 0], pts[:, 2]) / (2 * np.pi) + 0.5
+    v = (pts[:, 1] - pts[:, 1].min()) / max(np.ptp(pts[:, 1]), 1e-9)
+    return item_mesh(name, pts, [q], _st_vertex(np.stack([u, v], 1)))
+
+
+def offset_shell(body: Mesh, solid: Solid, clearance: float, parts, snap: float,
+                 keep_components: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """Body quads whose vertices fall in ``parts`` moved to ``f = clearance``.
 
     parts: [(bone names, [(normal (3,), d), ...])]: a vertex belongs to a
         part if its dominant bone is listed and ``normal . p <= d`` for every
         plane (evaluated on the body point).
     snap: boundary vertices within this distance of a plane are moved onto it.
+
+    Returns
+    -------
+    points : (V, 3) the shell's vertices, at least ``clearance`` outside.
+    quads : (Q, 4) int64, wound like the body's (outward).
     """
     bone = np.asarray(JOINT_NAMES)[body.joint_indices[:, 0]]
     p0 = body.points
@@ -241,10 +261,7 @@ def _offset_patch(name: str, body: Mesh, solid: Solid, clearance: float, parts, 
     fixed[bnd] = True
     pts = relax_on_surface(solid, pts, q, clearance, iters=2, amount=0.4, fixed=fixed)
     pts[bnd] = solid.project(pts[bnd], clearance, iters=3)
-    # cylindrical UVs about the body's vertical axis
-    u = np.arctan2(pts[:, 0], pts[:, 2]) / (2 * np.pi) + 0.5
-    v = (pts[:, 1] - pts[:, 1].min()) / max(np.ptp(pts[:, 1]), 1e-9)
-    return _mesh(name, pts, [q], _st_vertex(np.stack([u, v], 1)))
+    return pts, q
 
 
 # --------------------------------------------------------------------------
