@@ -15,7 +15,7 @@ from wearfit_usd.demo.samples.body import JOINT_NAMES, layout
 from wearfit_usd.motion.skinning import skin_mesh
 from wearfit_usd.transforms import make_matrix, matrix_from_quat
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope="module")
