@@ -7,6 +7,8 @@ import json
 import numpy as np
 import pytest
 
+pytestmark = pytest.mark.slow  # the fixture runs the whole demo (about 40 s)
+
 from wearfit_usd.cli import main
 
 

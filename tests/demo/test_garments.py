@@ -232,6 +232,7 @@ def _cases():
     return out
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name,clip", [pytest.param(g, c, id=f"{g}-{c}") for g in GARMENTS for c in CLIPS])
 def test_garment_shot_is_written_without_new_penetration(shots, ref, target, garments, name, clip):
     from wearfit_usd.io.usd_validate import validate_stage
@@ -241,6 +242,7 @@ def test_garment_shot_is_written_without_new_penetration(shots, ref, target, gar
     assert rep.worst_frame_penetration < 0.01
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name,clip", _cases())
 def test_garment_keeps_its_shape_in_motion(shots, ref, target, garments, name, clip):
     _, path, static = _shot(shots, ref, target, garments[name], clip)
