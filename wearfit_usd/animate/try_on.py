@@ -33,6 +33,7 @@ from ..dress.plan import plan as plan_dress
 from ..errors import USDInputError
 from ..io.usd_shot import ShotWriter
 from ..progress import info, progress
+from ..motion.floor import place_on_floor
 from ..motion.retarget import retarget
 from ..motion.skinning import Skinner, skin_points, skinning_matrices
 
@@ -52,6 +53,7 @@ class AnimateOptions:
     dress_pose: str = "first"          # "first": dress in frame 0's pose; "bind": on the bind pose
     measure_every: int = 0             # exact penetration statistics every N frames (0 = off)
     untangle: bool = False             # dressing's untangle pass on frame 0 (see dress.apply.apply)
+    floor: str = "auto"                # "auto": first frame on the rest floor; "keep" (motion.floor)
 
 
 @dataclass
@@ -92,6 +94,7 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
     # 1. retarget ------------------------------------------------------------
     t0 = time.perf_counter()
     rt = retarget(motion, target.skeleton, mapping=opt.mapping, start=opt.start, end=opt.end, fps=opt.fps)
+    rt, _ = place_on_floor(rt, target.skeleton, target.body, opt.floor)
     world = rt.world
     n_frames = world.shape[0]
     rep.frames, rep.fps = n_frames, float(rt.fps)

@@ -39,7 +39,7 @@ import numpy as np
 from ..io.bvh import BVHMotion
 from ..errors import InputError
 from .joint_maps import JointMapping, normalize, roles
-from .rig_match import RigMatch, match_skeletons, require_match
+from .rig_match import RigMatch, leg_length, match_skeletons, require_match
 from ..model import Skeleton
 from ..transforms import (invert, matrix_from_quat, quat_from_matrix, quat_slerp,
                          rotation_between, rotation_part)
@@ -244,6 +244,12 @@ def retarget(motion: BVHMotion, skeleton: Skeleton, mapping: JointMapping | dict
     if tfoot is not None:
         hh_t = _chain_height(bpos, tparents, troot, tfoot)
     ratio = hh_t / hh_c if hh_c > 1e-6 else 1.0
+    # strides scale with the legs: the horizontal travel by the leg-length ratio
+    ratio_xz = ratio
+    if match is not None:
+        lt, lc = leg_length(match.target, bpos), leg_length(match.source, srest)
+        if lt and lc:
+            ratio_xz = lt / lc
     # clip floor: the lowest joint over the retargeted frames
     floor_c = float(gpos[..., 1].min())
 
@@ -268,8 +274,8 @@ def retarget(motion: BVHMotion, skeleton: Skeleton, mapping: JointMapping | dict
             rot[:, t] = brot[t]
         if t == troot:
             d = root_pos - root_pos[:1]
-            pos[:, t, 0] = bpos[t, 0] + ratio * d[:, 0]
-            pos[:, t, 2] = bpos[t, 2] + ratio * d[:, 2]
+            pos[:, t, 0] = bpos[t, 0] + ratio_xz * d[:, 0]
+            pos[:, t, 2] = bpos[t, 2] + ratio_xz * d[:, 2]
             pos[:, t, 1] = floor_t + ratio * (root_pos[:, 1] - floor_c)
         elif p >= 0:
             off = (bind[t] @ inv_bind[p])[3, :3]  # bind offset in the parent's frame
@@ -281,7 +287,7 @@ def retarget(motion: BVHMotion, skeleton: Skeleton, mapping: JointMapping | dict
         W[:, t, :3, 3] = 0.0
     local = skeleton.local_from_world(W)
     report = match.report() if match is not None else mapping.report()
-    report.update({"mode": mode, "hip_height_ratio": ratio, "root_joint": tnames[troot],
+    report.update({"mode": mode, "hip_height_ratio": ratio, "travel_ratio": ratio_xz, "root_joint": tnames[troot],
                    "frames": F, "fps": out_fps, "source_range": [start, end]})
     return Retargeted(world=W, local=local, fps=out_fps, times=np.arange(F) / out_fps,
                       joint_names=tnames, mapping=mapping, source_frames=src_frames,

@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InputError
-from .joint_maps import JointMapping, map_joints, normalize, roles as name_roles
+from .joint_maps import JointMapping, map_joints, roles as name_roles
 
 #: roles that must be paired for pose alignment and retargeting
 KEY_ROLES: tuple[str, ...] = (
@@ -162,6 +162,10 @@ def _pick_leg(pos, chain, floor, scale):
         cost += 4.0 * ((pos[chain[k], 1] - floor) / scale) ** 2
         if _horizontal_bone(pos, chain, i, k, 0.02 * scale):
             cost += 5.0
+        # a helper just above the thigh (Daz's buttock): the thigh is the
+        # last joint before the long bone
+        if j > i + 1 and np.linalg.norm(pos[chain[i + 1]] - pos[chain[i]]) < 0.06 * (l1 + l2):
+            cost += 1.0
         # the thigh is the top of the straight leg: no long drop above it
         if i > 0 and pos[chain[0], 1] - pos[chain[i], 1] > 0.2 * (l1 + l2):
             cost += 2.0
@@ -592,6 +596,20 @@ def require_match(match: RigMatch, source_path, target_path, what: str, escape: 
                      + f"; give a JSON joint map or use {escape}")
 
 
-def side_of(name: str) -> str:
-    """'l', 'r' or '' from a joint name (see :func:`joint_maps.normalize`)."""
-    return normalize(name)[0]
+def leg_length(roles_: RigRoles, positions) -> float | None:
+    """Mean thigh + shin length of both legs (hip -> knee -> ankle) in the
+    positions' units, or None without the leg roles.
+
+    Parameters
+    ----------
+    roles_ : the skeleton's :class:`RigRoles`.
+    positions : (J, 3) rest positions.
+    """
+    pos = np.asarray(positions, dtype=np.float64)
+    out = []
+    for s in "lr":
+        js = [roles_.roles.get(f"{k}_{s}") for k in ("thigh", "shin", "foot")]
+        if None in js:
+            continue
+        out.append(np.linalg.norm(pos[js[1]] - pos[js[0]]) + np.linalg.norm(pos[js[2]] - pos[js[1]]))
+    return float(np.mean(out)) if out else None
