@@ -95,7 +95,7 @@ def test_units_from_standing_height():
     assert choose_unit(31.0)[1].startswith("cmu")  # 1.75 m in CMU units
     # splayed legs lower the vertical extent; the bone path does not
     parents = np.array([-1, 0, 1, 0, 3])
-    pos = np.array([[0, 0, 0], [0, 60, 0], [0, 80, 0], [30, -45, 0], [60, -90, 0]], float)
+    pos = np.array([[0, 0, 0], [0, 60, 0], [0, 80, 0], [45, -45, 0], [90, -90, 0]], float)
     assert standing_height(parents, pos) > np.ptp(pos[:, 1])
 
 
@@ -109,9 +109,9 @@ def _write_game_bvh(path: Path, motion, root_name="joint_Root"):
     for j, p in enumerate(parents):
         if p >= 0:
             children[p].append(j)
-    rot = motion.local_rotations()  # (F, J, 3, 3) row-vector, internal axes (= file axes, Y up)
+    rot = motion.local_rotations()  # (F, J, 3, 3) row-vector, internal axes (= file axes: Y up)
     from wearfit_usd.transforms import matrix_to_euler
-    eul = matrix_to_euler(np.swapaxes(rot, -1, -2), "ZXY")  # column-vector for BVH
+    eul = matrix_to_euler(rot, "ZXY")
     trans = motion.local_translations() * cm
     hips_h = float(-motion.rest_global_transforms()[:, 3, 1].min()) * cm
     lines = ["HIERARCHY", f"ROOT {root_name}", "{", "  OFFSET 0 0 0",
@@ -179,7 +179,15 @@ def test_floor_keep_and_error_for_unpairable_clip(tmp_path, bodies):
     assert same is rt and shift == 0.0
     moved, shift = place_on_floor(rt, char.skeleton, char.body, "auto")
     d = moved.world[:, :, 3, 1] - rt.world[:, :, 3, 1]
-    np.testing.assert_allclose(d, shift)  # one constant shift: no drift added
+    # a rigid vertical translation per frame (the capture floor's tilt levelled
+    # along the travel), frame 0 moved by the constant shift, nothing horizontal
+    np.testing.assert_allclose(d, d[:, :1] * np.ones_like(d), atol=1e-12)
+    assert d[0, 0] == pytest.approx(shift)
+    assert abs(moved.report["floor_tilt_deg"]) < 3.0
+    np.testing.assert_array_equal(moved.world[:, :, 3, [0, 2]], rt.world[:, :, 3, [0, 2]])
+    inplace = retarget(read_bvh(DATA / "bvh" / "cmu_02_05_punch_strike.bvh"), char.skeleton, start=1, end=60)
+    moved, shift = place_on_floor(inplace, char.skeleton, char.body, "auto")
+    np.testing.assert_allclose(moved.world[:, :, 3, 1] - inplace.world[:, :, 3, 1], shift, atol=1e-12)
     np.testing.assert_allclose(char.skeleton.world_from_local(moved.local), moved.world, atol=1e-9)
     # a clip with no legs cannot be paired: a clear error naming the clip and roles
     bad = tmp_path / "armless.bvh"
