@@ -2,6 +2,7 @@
 on the data set's rigs, CMU clips and the third-party figures."""
 from __future__ import annotations
 
+import copy
 import subprocess
 import sys
 from pathlib import Path
@@ -135,7 +136,6 @@ def test_no_legs_is_a_clear_error(skeletons):
     legs = {j for j, n in enumerate(sk.joint_names) if n.split("_")[0] in ("thigh", "calf", "foot", "ball")}
     keep = [j for j in range(sk.n_joints) if j not in legs]
     remap = {o: i for i, o in enumerate(keep)}
-    import copy
     legless = copy.copy(sk)
     legless.joint_names = [f"x{i}" for i in range(len(keep))]
     legless.parents = np.array([remap[sk.parents[o]] if sk.parents[o] >= 0 else -1 for o in keep])

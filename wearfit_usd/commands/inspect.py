@@ -95,8 +95,8 @@ def describe_bvh(path: Path, scale) -> dict:
 
 
 def skeleton_of(path: Path, scale=None):
-    """(names, parents, (J, 3) rest positions, label) of a USD stage's
-    skeleton or a BVH clip's rest pose. Raises :class:`InputError` without one."""
+    """(names, parents (J,), rest positions (J, 3)) of a USD stage's skeleton
+    (bind pose) or a BVH clip (rest pose). Raises :class:`InputError` without one."""
     if path.suffix.lower() == ".bvh":
         from ..io.bvh import read_bvh
         m = read_bvh(path, scale=scale)
