@@ -31,6 +31,7 @@ from .skin_transfer import transfer_weights
 from ..dress.apply import apply as apply_plan, dress
 from ..dress.plan import plan as plan_dress
 from ..errors import USDInputError
+from ..fit.body_fit import fit_character
 from ..io.usd_shot import ShotWriter
 from ..progress import info, progress
 from ..motion.floor import place_on_floor
@@ -54,6 +55,7 @@ class AnimateOptions:
     measure_every: int = 0             # exact penetration statistics every N frames (0 = off)
     untangle: bool = False             # dressing's untangle pass on frame 0 (see dress.apply.apply)
     floor: str = "auto"                # "auto": first frame on the rest floor; "keep" (motion.floor)
+    pose_align: bool = True            # False: the dressing's body fit by similarity only (--no-pose)
 
 
 @dataclass
@@ -115,7 +117,8 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
     ref_plan = plan_dress(reference, k=opt.k)
     if opt.mode == "lbs" or opt.dress_pose == "bind":
         # dressed on the target's bind pose; frame 0 comes from the binding
-        dressed = dress_items(reference, target, k=opt.k, untangle=opt.untangle, prepared=ref_plan)
+        dressed = dress_items(reference, target, k=opt.k, untangle=opt.untangle, prepared=ref_plan,
+                              pose_align=opt.pose_align)
         base_body, base_skeleton = body.points, target.skeleton
     else:
         # dressed in frame 0's pose: the reference is posed through its own
@@ -133,7 +136,8 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
                             skeleton=_posed_skeleton(reference.skeleton, ref_world0), items=posed_plan.items)
         base_skeleton = _posed_skeleton(target.skeleton, world[0])
         posed_target = replace(target, body=target.body.copy_with_points(body0), skeleton=base_skeleton)
-        dressed = dress_items(posed_ref, posed_target, k=opt.k, untangle=opt.untangle, prepared=posed_plan)
+        dressed = dress_items(posed_ref, posed_target, k=opt.k, untangle=opt.untangle, prepared=posed_plan,
+                              pose_align=opt.pose_align)
         base_body = body0
     items_base, dress_timings = dressed.items, dressed.timings
     rep.timings["dress"] = time.perf_counter() - t0
@@ -221,8 +225,11 @@ class _LBSEvaluator:
         return self.skinner(self.mats[f])
 
 
-def dress_items(reference: Character, target: Character, k: int = 5, **plan_kw):
+def dress_items(reference: Character, target: Character, k: int = 5, pose_align: bool = True, **plan_kw):
     """Fit the reference body onto the target body and redress the items
     (:func:`dress.apply.dress`). Returns its :class:`dress.apply.DressResult` (items
-    on the target in internal space, plan, timings)."""
+    on the target in internal space, plan, timings). ``pose_align=False``: the
+    body fit uses similarity alignment only (no skeleton pairing)."""
+    if not pose_align:
+        plan_kw["body_points"] = fit_character(reference, target, {"pose_align": False}).points
     return dress(reference, target, k=k, **plan_kw)

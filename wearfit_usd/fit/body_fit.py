@@ -450,7 +450,7 @@ def fit_body(ref_points: Points, ref_faces: Faces, target_points: Points, target
         match = pa.skeleton_match(ref_skeleton, target_skeleton)
         if opts.pose_align:
             require_match(match, opts.ref_label, opts.target_label, "the pose step",
-                          "--no-pose (similarity alignment only)")
+                          "use --no-pose for similarity alignment only")
         pairs = match.index_pairs()
         diag["joint_match"] = {"confidence": round(match.confidence, 3), "by_names": match.by_names,
                                "missing_key_roles": match.missing}

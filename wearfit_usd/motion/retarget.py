@@ -152,7 +152,8 @@ def retarget(motion: BVHMotion, skeleton: Skeleton, mapping: JointMapping | dict
     if mapping is None or isinstance(mapping, dict):
         match = match_clip(motion, skeleton, user_map=mapping)
         require_match(match, motion.path, skeleton.path or "<target skeleton>",
-                      "retargeting the clip", "--map JOINTS.json")
+                      "retargeting the clip",
+                      "pair them with a JSON joint map {target joint: clip joint} (--map)")
         mapping = match.mapping
     sidx = {n: i for i, n in enumerate(motion.joint_names)}
     tparents = np.asarray(skeleton.parents)

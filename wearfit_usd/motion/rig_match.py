@@ -582,8 +582,8 @@ def match_skeletons(src_names, src_parents, src_positions, tgt_names, tgt_parent
 
 def require_match(match: RigMatch, source_path, target_path, what: str, escape: str) -> None:
     """Raise :class:`InputError` (exit 2) naming the file and the roles when
-    key roles are not paired; ``escape`` names the option that proceeds
-    without the pairing."""
+    key roles are not paired; ``escape`` (appended to the message) says what
+    the user can do."""
     if match.ok:
         return
     if match.missing["source"]:
@@ -593,7 +593,7 @@ def require_match(match: RigMatch, source_path, target_path, what: str, escape: 
     notes = match.source.notes if side == "source" else match.target.notes
     raise InputError(path, f"cannot pair the key joints for {what}: no {', '.join(roles_)} found in "
                            f"this skeleton" + (f" ({'; '.join(notes)})" if notes else "")
-                     + f"; give a JSON joint map or use {escape}")
+                     + f"; {escape}")
 
 
 def leg_length(roles_: RigRoles, positions) -> float | None:
