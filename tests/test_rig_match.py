@@ -102,6 +102,11 @@ def test_third_party_figures_pair_with_the_reference(skeletons):
         m = match_skeletons(sk.joint_names, sk.parents, sk.bind_positions(), names, parents, pos)
         assert m.ok, (f, m.missing)
         got = {r: m.source.joint(r) for r in KEY_ROLES}
+        # names scrambled: the structure alone finds the same joints
+        sn, sp, spos, order = _scramble(sk.joint_names, sk.parents, sk.bind_positions(), 5)
+        ms = match_skeletons(sn, sp, spos, names, parents, pos)
+        assert ms.ok and not ms.by_names and ms.confidence >= 0.5, (f, ms.missing)
+        assert {r: sk.joint_names[order[ms.source.roles[r]]] for r in KEY_ROLES} == got, f
         if f.startswith("RiggedFigure"):
             assert got["thigh_l"] == "leg_joint_L_1" and got["shin_r"] == "leg_joint_R_2"
             assert got["foot_l"] == "leg_joint_L_3" and got["hand_r"] == "arm_joint_R_3"
@@ -162,3 +167,15 @@ def test_inspect_map_prints_the_pairing():
     assert out.returncode == 0, out.stderr
     assert "confidence" in out.stdout and "leg_joint_L_1" in out.stdout and "thigh_l" in out.stdout
     assert "KEY ROLES NOT PAIRED" not in out.stdout
+
+
+def test_name_hint_tables_for_other_conventions():
+    assert name_roles(["hips", "spine", "leftUpperLeg", "rightUpperLeg", "leftLowerLeg", "leftHand"]) == {
+        "hips": "hips", "spine_lower": "spine", "thigh_l": "leftUpperLeg", "thigh_r": "rightUpperLeg",
+        "shin_l": "leftLowerLeg", "hand_l": "leftHand"}
+    r = name_roles(["Hips", "LeftUpperLeg", "RightUpperLeg", "LeftLowerArm", "LeftToes"])
+    assert r["thigh_r"] == "RightUpperLeg" and r["forearm_l"] == "LeftLowerArm" and r["toe_l"] == "LeftToes"
+    r = name_roles(["J_Bip_C_Hips", "J_Bip_L_UpperLeg", "J_Bip_R_UpperLeg", "J_Bip_R_Hand"])
+    assert r["thigh_l"] == "J_Bip_L_UpperLeg" and r["hand_r"] == "J_Bip_R_Hand"
+    r = name_roles(["joint_Root", "Hips", "UpperLeg_L", "LowerLeg_L", "Shoulder_R", "Hand_R"])
+    assert r["root"] == "joint_Root" and r["shin_l"] == "LowerLeg_L" and r["clavicle_r"] == "Shoulder_R"
