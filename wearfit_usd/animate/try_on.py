@@ -33,8 +33,10 @@ from .skin_transfer import transfer_weights
 from ..dress.apply import apply as apply_plan, dress
 from ..dress.plan import plan as plan_dress
 from ..errors import USDInputError
+from ..fit.body_fit import fit_character
 from ..io.usd_shot import ShotWriter
 from ..progress import info, progress
+from ..motion.floor import place_on_floor
 from ..motion.retarget import retarget
 from ..motion.skinning import Skinner, skin_points, skinning_matrices
 
@@ -55,6 +57,8 @@ class AnimateOptions:
     measure_every: int = 0             # exact penetration statistics every N frames (0 = off)
     motion_measures: bool = True       # with measure_every: also the motion measures (animate.measures)
     untangle: bool = False             # dressing's untangle pass on frame 0 (see dress.apply.apply)
+    floor: str = "auto"                # "auto": first frame on the rest floor; "keep" (motion.floor)
+    pose_align: bool = True            # False: the dressing's body fit by similarity only (--no-pose)
 
 
 @dataclass
@@ -102,6 +106,7 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
     # 1. retarget ------------------------------------------------------------
     t0 = time.perf_counter()
     rt = retarget(motion, target.skeleton, mapping=opt.mapping, start=opt.start, end=opt.end, fps=opt.fps)
+    rt, _ = place_on_floor(rt, target.skeleton, target.body, opt.floor)
     world = rt.world
     n_frames = world.shape[0]
     rep.frames, rep.fps = n_frames, float(rt.fps)
@@ -122,7 +127,8 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
     ref_plan = plan_dress(reference, k=opt.k)
     if opt.mode == "lbs" or opt.dress_pose == "bind":
         # dressed on the target's bind pose; frame 0 comes from the binding
-        dressed = dress_items(reference, target, k=opt.k, untangle=opt.untangle, prepared=ref_plan)
+        dressed = dress_items(reference, target, k=opt.k, untangle=opt.untangle, prepared=ref_plan,
+                              pose_align=opt.pose_align)
         base_body, base_skeleton = body.points, target.skeleton
     else:
         # dressed in frame 0's pose: the reference is posed through its own
@@ -140,7 +146,8 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
                             skeleton=_posed_skeleton(reference.skeleton, ref_world0), items=posed_plan.items)
         base_skeleton = _posed_skeleton(target.skeleton, world[0])
         posed_target = replace(target, body=target.body.copy_with_points(body0), skeleton=base_skeleton)
-        dressed = dress_items(posed_ref, posed_target, k=opt.k, untangle=opt.untangle, prepared=posed_plan)
+        dressed = dress_items(posed_ref, posed_target, k=opt.k, untangle=opt.untangle, prepared=posed_plan,
+                              pose_align=opt.pose_align)
         base_body = body0
     items_base, dress_timings = dressed.items, dressed.timings
     rep.timings["dress"] = time.perf_counter() - t0
@@ -261,8 +268,11 @@ class _LBSEvaluator:
         return self.skinner(self.mats[f])
 
 
-def dress_items(reference: Character, target: Character, k: int = 5, **plan_kw):
+def dress_items(reference: Character, target: Character, k: int = 5, pose_align: bool = True, **plan_kw):
     """Fit the reference body onto the target body and redress the items
     (:func:`dress.apply.dress`). Returns its :class:`dress.apply.DressResult` (items
-    on the target in internal space, plan, timings)."""
+    on the target in internal space, plan, timings). ``pose_align=False``: the
+    body fit uses similarity alignment only (no skeleton pairing)."""
+    if not pose_align:
+        plan_kw["body_points"] = fit_character(reference, target, {"pose_align": False}).points
     return dress(reference, target, k=k, **plan_kw)

@@ -23,6 +23,13 @@ def register(sub, common):
     p.add_argument("--fps", default="30", help="output frame rate, or 'native' for the clip's (default 30)")
     p.add_argument("--map", dest="mapping", default=None,
                    help="JSON joint map {target_joint: clip_joint} overriding the automatic mapping")
+    p.add_argument("--floor", choices=["auto", "keep"], default="auto",
+                   help="auto: move the clip up or down so the body's lowest point at the first frame is on "
+                        "its rest floor (one constant shift: the clip's own vertical motion is kept; "
+                        "default); keep: the clip's heights as retargeted")
+    p.add_argument("--no-pose", action="store_true",
+                   help="dress with the reference body fitted by similarity alignment only (no pairing of the "
+                        "reference's and the target's skeletons); the clip must still pair with the target")
     p.add_argument("--bvh-scale", type=float, default=None, help="metres per BVH unit (default: detected)")
     p.add_argument("--mode", choices=["bind", "lbs"], default="bind",
                    help="bind: K-triangle binding per frame (default); lbs: skin weights copied to the items")
@@ -81,7 +88,8 @@ def run(args) -> int:
     opts = AnimateOptions(k=args.k, start=args.start, end=args.end, fps=fps, mode=args.mode,
                           mapping=mapping, clip_frames=args.clip_frames, velocities=args.velocities,
                           write_skinned_items=args.write_skinned_items, dress_pose=args.dress_pose,
-                          untangle=args.untangle, measure_every=every)
+                          untangle=args.untangle, measure_every=every, floor=args.floor,
+                          pose_align=not args.no_pose)
     rep = animate(reference, target, motion, args.output, opts)
     t = rep.timings
     info(f"wrote {args.output}: {rep.frames} frames at {rep.fps:g} fps, {len(reference.items)} items; "

@@ -32,6 +32,9 @@ def register(sub, common):
     p.add_argument("--report", default=None, metavar="FILE.json",
                    help="write per-item fit figures (new penetrations, clearance change, flipped "
                         "triangles, over-stretched edges) and timings as JSON")
+    p.add_argument("--no-pose", action="store_true",
+                   help="fit the reference body by similarity alignment only (no skeleton pairing); "
+                        "needed when the two skeletons' key joints cannot be paired")
     p.add_argument("--strict", action="store_true",
                    help="fail (instead of warning) when an item lies more than 0.5 m from the body")
     p.set_defaults(func=run)
@@ -62,9 +65,13 @@ def run(args) -> int:
         if unknown:
             raise InputError(ref_path, f"--rigid names unknown items {unknown}; items: "
                                        f"{[m.name for m in ref.items]}")
+    body_points = None
+    if args.no_pose:
+        from ..fit.body_fit import fit_character
+        body_points = fit_character(ref, target, {"pose_align": False}).points
     res = dress(ref, target, k=args.k, use_regions=not args.no_regions, rigid=rigid,
                 penetration=not args.no_push_out, strict_far=args.strict,
-                push_inherited=args.fix_reference_penetrations)
+                push_inherited=args.fix_reference_penetrations, body_points=body_points)
     write_character(out, target, items=res.items)
     t = res.timings
     if args.report:

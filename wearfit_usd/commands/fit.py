@@ -73,6 +73,11 @@ def run(args) -> int:
     write_character(out, char, items=[], up_axis=target.up_axis,
                     meters_per_unit=target.meters_per_unit)
     d = result.diagnostics
+    jm = d.get("joint_match")
+    if jm and not jm["by_names"]:
+        info(f"joints paired by role (names and structure): {d.get('joint_pairs', 0)} pairs, "
+             f"confidence {jm['confidence']:.2f}; `wearfit inspect {args.reference} --map {args.target}` "
+             "lists them")
     if result.same_topology:
         info(f"{out}: same topology as the target: fitted = target points "
              f"({d['ref_vertices']} vertices)")

@@ -20,6 +20,10 @@ def register(sub, common):
     p.add_argument("--joints", action="store_true", help="list every joint")
     p.add_argument("--bvh-scale", type=float, default=None,
                    help="BVH: metres per file unit (default: detected)")
+    p.add_argument("--map", dest="map_other", metavar="OTHER", default=None,
+                   help="also print how FILE's joints pair with OTHER's (a USD stage or BVH clip): "
+                        "semantic roles found by names and structure, a confidence per role, and the "
+                        "joint pairs (FILE is the source, OTHER the target)")
     p.set_defaults(func=run)
     return p
 
@@ -90,6 +94,66 @@ def describe_bvh(path: Path, scale) -> dict:
     return motion.summary()
 
 
+def skeleton_of(path: Path, scale=None):
+    """(names, parents (J,), rest positions (J, 3)) of a USD stage's skeleton
+    (bind pose) or a BVH clip (rest pose). Raises :class:`InputError` without one."""
+    if path.suffix.lower() == ".bvh":
+        from ..io.bvh import read_bvh
+        m = read_bvh(path, scale=scale)
+        return m.joint_names, m.parents, m.rest_global_transforms()[:, 3, :3]
+    from ..io.usd import read_character
+    char = read_character(path, require_skeleton=False)
+    if char.skeleton is None:
+        raise InputError(path, "no skeleton to pair")
+    sk = char.skeleton
+    return sk.joint_names, sk.parents, sk.bind_positions()
+
+
+def describe_pairing(path: Path, other: Path, scale=None) -> dict:
+    """The pairing of FILE's skeleton (source) with OTHER's (target):
+    :meth:`wearfit_usd.motion.rig_match.RigMatch.report` plus each side's roles."""
+    from ..motion.rig_match import match_skeletons
+    if not other.exists():
+        raise InputError(other, "file not found")
+    sn, sp, spos = skeleton_of(path, scale)
+    tn, tp, tpos = skeleton_of(other, scale)
+    m = match_skeletons(sn, sp, spos, tn, tp, tpos)
+    rep = m.report()
+    rep["source"] = {"file": str(path), **m.source.report()}
+    rep["target"] = {"file": str(other), **m.target.report()}
+    return rep
+
+
+def format_pairing(rep: dict) -> str:
+    """Text of :func:`describe_pairing`: roles found on both sides (and every
+    key role), confidences, the other pairs and the structure's notes."""
+    from ..motion.rig_match import KEY_ROLES
+    src, tgt = rep["source"], rep["target"]
+    lines = [f"pairing {src['file']} (source) -> {tgt['file']} (target): {rep['mapped']} joints paired, "
+             f"confidence {rep['confidence']:.2f}"
+             + (" (by names)" if rep["by_names"] else " (roles from structure and names)")]
+    miss = rep["missing_key_roles"]
+    if miss["source"] or miss["target"]:
+        lines.append("  KEY ROLES NOT PAIRED: " + "; ".join(
+            f"{k} lacks {', '.join(v)}" for k, v in miss.items() if v))
+    lines.append(f"  {'role':<14} {'source':<28} {'conf':>5}  {'target':<28} {'conf':>5}")
+    for role, (a, b) in rep["roles"].items():
+        if not (a and b) and role not in KEY_ROLES:
+            continue
+        ca = src["confidence"].get(role)
+        cb = tgt["confidence"].get(role)
+        lines.append(f"  {role:<14} {a or '-':<28} {'' if ca is None else f'{ca:.2f}':>5}  "
+                     f"{b or '-':<28} {'' if cb is None else f'{cb:.2f}':>5}")
+    role_joints = {b for a, b in rep["roles"].values() if b}
+    extra = [(t, s) for t, s in rep["pairs"].items() if t not in role_joints]
+    if extra:
+        lines.append(f"  other pairs ({len(extra)}): " + ", ".join(f"{s}->{t}" for t, s in extra))
+    for side in (src, tgt):
+        for n in side["notes"]:
+            lines.append(f"  note ({side['file']}): {n}")
+    return "\n".join(lines)
+
+
 def format_text(info: dict, all_joints: bool) -> str:
     lines = [f"{info['file']}"]
     if info["kind"] == "bvh":
@@ -142,8 +206,13 @@ def run(args) -> int:
         info = describe_usd(path)
     else:
         raise InputError(path, "unknown file type (expected .usd, .usda, .usdc, .usdz or .bvh)")
+    pairing = describe_pairing(path, Path(args.map_other), args.bvh_scale) if args.map_other else None
     if args.json:
+        if pairing is not None:
+            info["pairing"] = pairing
         print(json.dumps(info, indent=2, default=float))
     else:
         print(format_text(info, args.joints))
+        if pairing is not None:
+            print(format_pairing(pairing))
     return 0

@@ -48,6 +48,7 @@ from ..errors import GeometryError
 from ..geometry.closest import vertex_normals
 from ..geometry.mesh import nondegenerate
 from ..geometry.sparse_solve import SPDSolver
+from ..motion.rig_match import require_match
 from ..motion.skinning import skin_points
 from ..transforms import rotation_part
 from ..types import Faces, JointIndices, Mask, Points, Weights
@@ -446,7 +447,13 @@ def fit_body(ref_points: Points, ref_faces: Faces, target_points: Points, target
     have_rigs = ref_skeleton is not None and target_skeleton is not None
     can_skin = have_rigs and ref_joint_indices is not None and ref_joint_weights is not None
     if have_rigs:
-        pairs = pa.joint_pairs(ref_skeleton.joint_names, target_skeleton.joint_names)
+        match = pa.skeleton_match(ref_skeleton, target_skeleton)
+        if opts.pose_align:
+            require_match(match, opts.ref_label, opts.target_label, "the pose step",
+                          "use --no-pose for similarity alignment only")
+        pairs = match.index_pairs()
+        diag["joint_match"] = {"confidence": round(match.confidence, 3), "by_names": match.by_names,
+                               "missing_key_roles": match.missing}
     if have_rigs and len(pairs) >= 3:
         pose = pa.pose_to_target(ref_skeleton.bind_world, ref_skeleton.parents,
                                  target_skeleton.bind_world, pairs, stretch=opts.stretch_bones)

@@ -23,6 +23,7 @@ from scipy.spatial import cKDTree
 
 from ..geometry.mesh import best_rotation, similarity_fit
 from ..motion.joint_maps import map_joints
+from ..motion.rig_match import RigMatch, match_skeletons
 from ..transforms import rotation_between, rotation_part
 from ..types import Matrices4, Matrix4, Points, Scalars
 
@@ -62,12 +63,26 @@ def _normalise_mapping(result, source_names, target_names) -> list[tuple[int, in
     return sorted(set(pairs))
 
 
-def joint_pairs(source_names: list[str], target_names: list[str]) -> list[tuple[int, int]]:
+def skeleton_match(source, target, user_map: dict | None = None) -> RigMatch:
+    """:func:`wearfit_usd.motion.rig_match.match_skeletons` for two
+    :class:`~wearfit_usd.model.Skeleton` (their bind positions)."""
+    return match_skeletons(source.joint_names, source.parents, source.bind_positions(),
+                           target.joint_names, target.parents, target.bind_positions(),
+                           user_map=user_map)
+
+
+def joint_pairs(source_names: list[str], target_names: list[str], source_skeleton=None,
+                target_skeleton=None) -> list[tuple[int, int]]:
     """[(source joint index, target joint index)] for joints that correspond.
 
-    Uses :func:`wearfit_usd.motion.joint_maps.map_joints`; when it fails or
-    pairs nothing, joints with identical names are paired.
+    With both skeletons (:class:`~wearfit_usd.model.Skeleton`) the pairs come
+    from :func:`skeleton_match` (roles from names and structure; exactly the
+    name pairs when the name tables pair every key role). Otherwise
+    :func:`wearfit_usd.motion.joint_maps.map_joints`; when it fails or pairs
+    nothing, joints with identical names are paired.
     """
+    if source_skeleton is not None and target_skeleton is not None:
+        return skeleton_match(source_skeleton, target_skeleton).index_pairs()
     try:
         pairs = _normalise_mapping(map_joints(list(source_names), list(target_names)),
                                    source_names, target_names)

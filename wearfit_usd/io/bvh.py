@@ -40,6 +40,7 @@ import numpy as np
 from ..errors import BVHError
 from ..transforms import Z_UP_TO_Y_UP, euler_to_matrix
 from .atomic import atomic_output
+from .bvh_units import choose_unit, position_mode, standing_height
 
 #: metres per CMU unit (ASF ``length 0.45``: 1 unit = 1/0.45 inch)
 CMU_UNIT_M = 0.0254 / 0.45
@@ -84,6 +85,10 @@ class BVHMotion:
     up_axis: str
     dialect: str
     channel_start: np.ndarray = field(default=None)  # (J,) first column of each joint
+    #: non-root position channels: "add" (OFFSET + channels) or "absolute"
+    #: (the channels repeat the OFFSET: they are the translation), see
+    #: :func:`wearfit_usd.io.bvh_units.position_mode`
+    position_mode: str = "add"
     _file_to_internal: np.ndarray = field(default=None, repr=False)  # (3, 3)
 
     @property
@@ -144,6 +149,9 @@ class BVHMotion:
             for a, col in enumerate(idx):
                 if col >= 0:
                     p[:, a] = vals[:, col]
+            if self.position_mode == "absolute" and self.parents[j] >= 0:
+                p = p - np.where(np.array(idx) >= 0, self.offsets[j] @ self._file_to_internal.T
+                                 / self.scale, 0.0)  # the channels replace the OFFSET
             t[:, j] += (p * self.scale) @ self._file_to_internal
         return t
 
@@ -530,7 +538,9 @@ def read_bvh(path, scale: float | None = None) -> BVHMotion:
     ends_file = np.array([pos[j] + o for j, o in end_sites]).reshape(-1, 3)
     allp = np.concatenate([pos, ends_file]) @ c3
     height_units = float(np.ptp(allp[:, 1])) if len(allp) else 0.0
-    if scale is None:
+    if scale is None and not dialect.startswith("cmu"):
+        scale, units = choose_unit(standing_height(parents, allp))
+    elif scale is None:
         scale, units = _detect_scale(height_units, dialect)
     else:
         scale = float(scale)
@@ -544,7 +554,9 @@ def read_bvh(path, scale: float | None = None) -> BVHMotion:
         end_sites=[(j, (o * scale) @ c3) for j, o in end_sites],
         channels=channels, rotation_orders=orders, frame_time=frame_time, n_frames=n_frames,
         values=values, scale=scale, units=units, up_axis=up, dialect=dialect,
-        channel_start=starts, _file_to_internal=c3)
+        channel_start=starts, _file_to_internal=c3,
+        position_mode=position_mode(parents, off_file, channels, values[0] if n_frames else None,
+                                    starts))
 
 
 # --------------------------------------------------------------------------

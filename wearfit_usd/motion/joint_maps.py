@@ -142,6 +142,37 @@ _CONVENTIONS: dict[str, dict[str, str]] = {
         **{f"{f}{k}": (f"thumb.0{k}.{{S}}" if f == "thumb" else f"f_{f}.0{k}.{{S}}")
            for f in _FINGERS for k in (1, 2, 3)},
     },
+    # VRM humanoid bone names and Godot's SkeletonProfileHumanoid (LeftUpperLeg...)
+    "vrm_godot": {
+        "hips": "Hips|hips", "spine_lower": "Spine|spine", "chest": "Chest|chest",
+        "spine_mid": "UpperChest|upperChest", "neck": "Neck|neck", "head": "Head|head",
+        "thigh": "{Side}UpperLeg|{side}UpperLeg", "shin": "{Side}LowerLeg|{side}LowerLeg",
+        "foot": "{Side}Foot|{side}Foot", "toe": "{Side}Toes|{side}Toes",
+        "clavicle": "{Side}Shoulder|{side}Shoulder", "upper_arm": "{Side}UpperArm|{side}UpperArm",
+        "forearm": "{Side}LowerArm|{side}LowerArm", "hand": "{Side}Hand|{side}Hand",
+    },
+    # VRoid exports (J_Bip_C_Hips, J_Bip_L_UpperLeg...)
+    "vroid": {
+        "hips": "J_Bip_C_Hips", "spine_lower": "J_Bip_C_Spine", "chest": "J_Bip_C_Chest",
+        "spine_mid": "J_Bip_C_UpperChest", "neck": "J_Bip_C_Neck", "head": "J_Bip_C_Head",
+        "thigh": "J_Bip_{S}_UpperLeg", "shin": "J_Bip_{S}_LowerLeg", "foot": "J_Bip_{S}_Foot",
+        "toe": "J_Bip_{S}_ToeBase", "clavicle": "J_Bip_{S}_Shoulder", "upper_arm": "J_Bip_{S}_UpperArm",
+        "forearm": "J_Bip_{S}_LowerArm", "hand": "J_Bip_{S}_Hand",
+    },
+    # Bandai-Namco motion dataset style (joint_Root above Hips; Shoulder_L...)
+    "bandai": {
+        "root": "joint_Root", "hips": "Hips", "spine_lower": "Spine", "chest": "Chest",
+        "neck": "Neck", "head": "Head", "thigh": "UpperLeg_{S}", "shin": "LowerLeg_{S}",
+        "foot": "Foot_{S}", "toe": "Toes_{S}", "clavicle": "Shoulder_{S}", "upper_arm": "UpperArm_{S}",
+        "forearm": "LowerArm_{S}", "hand": "Hand_{S}",
+    },
+    # Khronos glTF sample figures (RiggedFigure, CesiumMan: torso_joint_1, leg_joint_L_1...)
+    "gltf_sample": {
+        "hips": "torso_joint_1", "spine_lower": "torso_joint_2", "chest": "torso_joint_3",
+        "neck": "neck_joint_1", "head": "neck_joint_2", "thigh": "leg_joint_{S}_1",
+        "shin": "leg_joint_{S}_2", "foot": "leg_joint_{S}_3", "toe": "leg_joint_{S}_5",
+        "upper_arm": "arm_joint_{S}_1", "forearm": "arm_joint_{S}_2", "hand": "arm_joint_{S}_3",
+    },
 }
 _CONVENTIONS["unreal"] = _CONVENTIONS["game_engine"]
 

@@ -38,7 +38,8 @@ import numpy as np
 
 from ..io.bvh import BVHMotion
 from ..errors import InputError
-from .joint_maps import JointMapping, map_joints, normalize, roles
+from .joint_maps import JointMapping, normalize, roles
+from .rig_match import RigMatch, leg_length, match_skeletons, require_match
 from ..model import Skeleton
 from ..transforms import (invert, matrix_from_quat, quat_from_matrix, quat_slerp,
                          rotation_between, rotation_part)
@@ -147,10 +148,13 @@ def retarget(motion: BVHMotion, skeleton: Skeleton, mapping: JointMapping | dict
     if fps is not None and not fps > 0:
         raise InputError(motion.path, f"fps must be > 0, got {fps}")
     tnames = list(skeleton.joint_names)
-    if mapping is None:
-        mapping = map_joints(motion.joint_names, tnames)
-    elif isinstance(mapping, dict):
-        mapping = map_joints(motion.joint_names, tnames, user_map=mapping)
+    match = None
+    if mapping is None or isinstance(mapping, dict):
+        match = match_clip(motion, skeleton, user_map=mapping)
+        require_match(match, motion.path, skeleton.path or "<target skeleton>",
+                      "retargeting the clip",
+                      "pair them with a JSON joint map {target joint: clip joint} (--map)")
+        mapping = match.mapping
     sidx = {n: i for i, n in enumerate(motion.joint_names)}
     tparents = np.asarray(skeleton.parents)
     J = len(tnames)
@@ -170,11 +174,20 @@ def retarget(motion: BVHMotion, skeleton: Skeleton, mapping: JointMapping | dict
     troot_cand = [t for t in mapped if src_of[t] == sroot]
     tdepth = _depth(tparents)
     troot = troot_cand[0] if troot_cand else int(mapped[np.argmin(tdepth[mapped])])
+    if match is not None and "hips" in match.source.roles and "hips" in match.target.roles:
+        # a clip root above the hips (``joint_Root`` on the floor): the hips
+        # carry the translation, as on the target
+        sh, th = match.source.roles["hips"], match.target.roles["hips"]
+        if sh != sroot and src_of[th] == sh:
+            troot = th
 
     # ---- clip kinematics
     frames = np.arange(start, end)
     grot, gpos = motion.global_rotations_positions(frames)  # (F, Js, 3, 3), (F, Js, 3)
-    root_pos = gpos[:, sroot]
+    # the clip joint that drives the target's root carrier: the clip root, or
+    # the hips below a floor-level root joint (``joint_Root``)
+    s_carrier = int(src_of[troot])
+    root_pos = gpos[:, s_carrier]
     src_fps = motion.fps
     if fps is None or abs(fps - src_fps) < 1e-9:
         out_fps = src_fps
@@ -227,11 +240,17 @@ def retarget(motion: BVHMotion, skeleton: Skeleton, mapping: JointMapping | dict
     # clip: leg length in the rest pose, measured like the target's bind pose
     # (root height above the lowest joint), made robust to splayed rest legs
     # by using the chain lengths of the mapped leg
-    hh_c = _clip_hip_height(motion, srest, sroot)
+    hh_c = _clip_hip_height(motion, srest, s_carrier)
     tfoot = _find_foot(tnames, tparents, troot)
     if tfoot is not None:
         hh_t = _chain_height(bpos, tparents, troot, tfoot)
     ratio = hh_t / hh_c if hh_c > 1e-6 else 1.0
+    # strides scale with the legs: the horizontal travel by the leg-length ratio
+    ratio_xz = ratio
+    if match is not None:
+        lt, lc = leg_length(match.target, bpos), leg_length(match.source, srest)
+        if lt and lc:
+            ratio_xz = lt / lc
     # clip floor: the lowest joint over the retargeted frames
     floor_c = float(gpos[..., 1].min())
 
@@ -256,8 +275,8 @@ def retarget(motion: BVHMotion, skeleton: Skeleton, mapping: JointMapping | dict
             rot[:, t] = brot[t]
         if t == troot:
             d = root_pos - root_pos[:1]
-            pos[:, t, 0] = bpos[t, 0] + ratio * d[:, 0]
-            pos[:, t, 2] = bpos[t, 2] + ratio * d[:, 2]
+            pos[:, t, 0] = bpos[t, 0] + ratio_xz * d[:, 0]
+            pos[:, t, 2] = bpos[t, 2] + ratio_xz * d[:, 2]
             pos[:, t, 1] = floor_t + ratio * (root_pos[:, 1] - floor_c)
         elif p >= 0:
             off = (bind[t] @ inv_bind[p])[3, :3]  # bind offset in the parent's frame
@@ -268,12 +287,31 @@ def retarget(motion: BVHMotion, skeleton: Skeleton, mapping: JointMapping | dict
         W[:, t, 3, :3] = pos[:, t]
         W[:, t, :3, 3] = 0.0
     local = skeleton.local_from_world(W)
-    report = mapping.report()
-    report.update({"mode": mode, "hip_height_ratio": ratio, "root_joint": tnames[troot],
+    report = match.report() if match is not None else mapping.report()
+    report.update({"mode": mode, "hip_height_ratio": ratio, "travel_ratio": ratio_xz, "root_joint": tnames[troot],
                    "frames": F, "fps": out_fps, "source_range": [start, end]})
     return Retargeted(world=W, local=local, fps=out_fps, times=np.arange(F) / out_fps,
                       joint_names=tnames, mapping=mapping, source_frames=src_frames,
                       hip_height_ratio=ratio, report=report)
+
+
+def match_clip(motion: BVHMotion, skeleton: Skeleton, user_map: dict | None = None) -> RigMatch:
+    """Pair a clip's joints with a skeleton's (names as hints, then the rest
+    pose's structure: :func:`~wearfit_usd.motion.rig_match.match_skeletons`).
+
+    Parameters
+    ----------
+    motion : the clip (its rest pose: all channels zero).
+    skeleton : the target (its bind positions).
+    user_map : {target joint: clip joint or None} overriding the pairs.
+
+    Returns
+    -------
+    :class:`~wearfit_usd.motion.rig_match.RigMatch`.
+    """
+    return match_skeletons(motion.joint_names, motion.parents, motion.rest_global_transforms()[:, 3, :3],
+                           skeleton.joint_names, skeleton.parents, skeleton.bind_positions(),
+                           user_map=user_map)
 
 
 def _clip_hip_height(motion: BVHMotion, rest: np.ndarray, root: int) -> float:
