@@ -16,8 +16,9 @@ them. :class:`ClothSolver` simulates them instead, as cloth:
   a skirt keeps its flare, hair its shape, and settles back to it);
 * the edges keep their lengths in the static dress (stiff against stretch,
   softer against compression);
-* the body is the collider: every free vertex stays ``MARGIN`` outside the
-  skin of this frame (or its frame-0 clearance where that is less), with
+* the body is the collider: every free vertex, and the midpoint of every
+  edge longer than ``EDGE_SAMPLE_LENGTH``, stays ``MARGIN`` outside the skin
+  of this frame (or its frame-0 clearance where that is less), with
   friction;
 * inertia: velocities carry over from frame to frame (gravity, damping
   relative to the bound motion), so a skirt swings after a turn and hair
@@ -26,10 +27,25 @@ them. :class:`ClothSolver` simulates them instead, as cloth:
 The dynamics are XPBD (Macklin, Mueller, Chentanez 2016); the equations and
 the substep loop are in :mod:`kernels.cloth`. A frame of ``dt`` seconds is
 split into ``ceil(dt / MAX_SUBSTEP)`` substeps, the body and the targets
-moving linearly over them; the nearest body vertex of each free vertex is
-searched on a grid once per frame (within the distance the body can travel
-this frame) and followed by a walk over the body's vertex graph every
-substep.
+moving linearly over them. The nearest body vertex of each collision sample
+near the body is searched on a grid every ``SEEK_INTERVAL`` seconds (within
+the distance the body can travel until the next search; every sample each
+``RESEED_EVERY`` searches) and followed by a walk over the body's vertex
+graph every frame in between.
+
+The cloth starts at rest on the target's bind pose and is carried into the
+first frame by :meth:`ClothSolver.preroll` (the static dress of a walking
+pose can have a leg through a skirt bound to the hips: no collision could
+tell from there which side the cloth belongs on).
+
+Measured (CMU walk, ``ref_female_longskirt`` on ``body_female_heavy``, 2,076
+simulated vertices, native 120 fps, one core of a loaded machine): the leg
+skin inside the skirt that comes out through it drops from 65 % to 1.7 % in
+the worst frame, the skirt's edge stretch from p99 6.0x / max 21x to 2.0x /
+3.5x against the static dress, at 2.7 ms per frame (4.2 ms for 5,075
+vertices: the skirt and all of the bob's loose hair). Most of the remaining
+stretch is the skirt widening round the stride: it is as wide as it was cut,
+and the legs, which may not come through, are farther apart.
 
 Usage: ``solver = ClothSolver(plan, body_faces, body_points0, item_points0)``
 on the dressed frame 0, then ``points = solver.step(body_f, bound_f, dt)``
@@ -63,7 +79,8 @@ MARGIN = 0.005               # m kept between the cloth and the skin
 PREROLL_FRAMES = 20          # frames from the bind pose to the first frame (see ClothSolver.preroll)
 SETTLE_FRAMES = 10           # frames at rest on the first frame after that
 EDGE_SAMPLE_LENGTH = 0.03    # m: edges longer than this get a collision sample at their midpoint
-RESEED_EVERY = 8             # frames between grid searches of every sample's nearest body vertex
+SEEK_INTERVAL = 1.0 / 30.0   # s between grid searches of the nearest body vertex of the samples near the body
+RESEED_EVERY = 8             # searches between searches of every sample (the kernel walks from them between)
 SEED_REACH = 0.5             # m: the first search of each sample's nearest body vertex
 GRID_CELL = 0.02             # m: cell of the nearest-body-vertex grid
 REACH = 0.02                 # m: body farther than this (plus its motion this frame and gap) is not tested
@@ -160,7 +177,7 @@ class ClothSolver:
         self.max_substep, self.iterations = float(max_substep), int(iterations)
         self.stretch_alpha, self.compress_alpha = float(stretch_alpha), float(compress_alpha)
         self.damping, self.friction, self.reach = float(damping), float(friction), float(reach)
-        self.timings = {"frames": 0, "solve_s": 0.0}
+        self.timings = {"frames": 0, "solve_s": 0.0, "solve_cpu_s": 0.0}
         if self.n_free == 0:
             return
         e = np.asarray(plan.item_edges, dtype=np.int64)
@@ -218,7 +235,7 @@ class ClothSolver:
         self.hint = np.full(len(self.samples), -1, dtype=np.int64)
         self.clear = np.full(len(self.samples), -np.inf)
         self._seek(SEED_REACH)
-        self._frame = 1
+        self._frame, self._since = 1, 0.0
         self._scratch = (np.empty(len(self.edges)), np.empty((self.n_free, 3)), np.empty_like(self.x),
                          np.empty((len(self.samples), 3)))
 
@@ -264,7 +281,7 @@ class ClothSolver:
         self.clear[:] = -np.inf
         self.hint[:] = -1
         self._seek(SEED_REACH)
-        self._frame = 1
+        self._frame, self._since = 1, 0.0
 
     def preroll(self, body_from: np.ndarray, body_to: np.ndarray, bound_at, dt: float,
                 frames: int = PREROLL_FRAMES, settle: int = SETTLE_FRAMES) -> np.ndarray:
@@ -302,7 +319,7 @@ class ClothSolver:
         for _ in range(settle):
             self.step(b_to, bound_to, dt)
         # the shot's own frames are timed from here on
-        self.timings = {"frames": 0, "solve_s": 0.0, "preroll_s": self.timings["solve_s"]}
+        self.timings = {"frames": 0, "solve_s": 0.0, "solve_cpu_s": 0.0, "preroll_s": self.timings["solve_s"]}
         return self._points(bound_to)
 
     def _points(self, bound: np.ndarray) -> np.ndarray:
@@ -328,19 +345,25 @@ class ClothSolver:
         bound = np.asarray(bound_points, dtype=np.float64)
         if self.n_free == 0:
             return bound
-        t_start = time.perf_counter()
+        t_start, c_start = time.perf_counter(), time.process_time()
         b1 = np.ascontiguousarray(body_points, dtype=np.float64)
         n1 = self._normals(b1)
         t1 = np.ascontiguousarray(bound[self.particles])
         move = float(np.sqrt(np.max(np.einsum("ij,ij->i", b1 - self.b0, b1 - self.b0))))
         # every sample near the body: its nearest body vertex on last frame's
         # body; between these searches the kernel's walk follows it
-        radius = self.reach + self.gap + move
-        if self._frame % RESEED_EVERY == 0:
-            self._seek(radius)
-        else:  # only the samples that may touch it this frame
-            self._seek(radius, np.flatnonzero(self.clear < radius))
-        self._frame += 1
+        self._since += float(dt)
+        if self._since >= SEEK_INTERVAL - 1e-9:
+            # the samples that may touch the body (all of them now and then):
+            # their nearest body vertex on last frame's body, within what the
+            # body can travel until the next search
+            self._since = 0.0
+            radius = self.reach + self.gap + move * max(1.0, SEEK_INTERVAL / max(float(dt), 1e-9))
+            if self._frame % RESEED_EVERY == 0:
+                self._seek(radius)
+            else:
+                self._seek(radius, np.flatnonzero(self.clear < radius))
+            self._frame += 1
         cloth_frame(self.x, self.v, self.t0, t1, self.inv_m, self.n_free, self.att_alpha, self.edges, self.rest,
                     self.colour_ptr, self.stretch_alpha, self.compress_alpha, self.samples, self.sample_ptr,
                     self.hint, self.margin, self.clear, move, self.gap, self.b0, b1, self.n0, n1, self.adjacency,
@@ -350,4 +373,5 @@ class ClothSolver:
         self.grid.update(b1)
         self.timings["frames"] += 1
         self.timings["solve_s"] += time.perf_counter() - t_start
+        self.timings["solve_cpu_s"] += time.process_time() - c_start
         return self._points(bound)

@@ -234,6 +234,7 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
     rep.timings.update({"lbs_total": t_lbs, "evaluate_total": t_eval, "penetration_total": t_pen,
                         "write_total": t_write, "measure_total": t_measure,
                         "cloth_total": cloth.timings["solve_s"] if cloth is not None else 0.0,
+                        "cloth_cpu_total": cloth.timings["solve_cpu_s"] if cloth is not None else 0.0,
                         "lbs_fps": n_frames / max(t_lbs, 1e-9),
                         "evaluate_fps": n_frames / max(t_eval, 1e-9),
                         "write_fps": n_frames / max(t_write, 1e-9),

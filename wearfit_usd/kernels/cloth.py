@@ -40,20 +40,27 @@ vertex normals, renormalised, and the targets). Each substep:
      shortens), in the order of ``edges`` (coloured so that no two edges of
      one colour share a vertex: the numpy twin updates a colour at once and
      gets the same numbers);
-   * body collision (after the others, so it has the last word): the body
-     is the skin at ``b(s)``; the free vertex's nearest body vertex ``j`` is
-     found by a greedy walk over the body's vertex graph from last
-     substep's (``hint``; re-seeded from a grid search every frame by the
-     caller), ``n_j`` its unit normal; the signed distance estimate is
-     ``d = (p - b_j) . n_j``, and ``C = d - margin >= 0`` is projected hard
-     (``alpha = 0``): ``p += (margin - d) n_j``. A fast leg could carry a
-     vertex past its middle in one substep, where the nearest vertex is on
-     the far side: when the walk lands on a vertex whose normal opposes the
-     previous one and the vertex is within ``margin`` of the previous
-     vertex's plane (previous frame's side), the previous vertex and its
-     normal are kept. Friction (position-level Coulomb): the displacement
-     tangential to ``n_j`` relative to the body vertex's motion in this
-     substep is removed up to ``friction * depth``;
+   * body collision (after the others, so it has the last word), per
+     collision sample: a free particle, or the midpoint ``q = (p_a + p_b) / 2``
+     of an edge (a knee between the vertices of a coarse skirt meets one).
+     The body is the skin at ``b(s)``; the sample's nearest body vertex
+     ``j`` is followed by a greedy walk over the body's vertex graph from
+     the last one (``hint``, re-seeded from a grid search by the caller), on
+     the first pass of the frame's first substep; ``n_j`` is its unit normal,
+     ``d = (q - b_j) . n_j`` the signed distance estimate, and
+     ``C = d - margin >= 0`` is projected hard (``alpha = 0``): with
+     ``grad_a C = g_a n`` (``g = 1`` for a particle, ``1/2`` for each end of
+     an edge) each particle moves by ``w_a g_a / sum(w g^2) (margin - d) n``,
+     which moves the sample by exactly ``margin - d``. A sample whose lower
+     bound on its distance to the body vertices (``clear``, less the body's
+     largest motion and its own since) exceeds ``margin + gap`` is skipped.
+     A fast leg could carry a sample past its middle, where the nearest
+     vertex is on the far side: when the walk lands on a vertex whose normal
+     opposes the previous one and the sample is within ``margin`` of the
+     previous vertex's plane (previous frame's side), the previous vertex
+     and its normal are kept. Friction (position-level Coulomb): the
+     sample's displacement tangential to ``n_j``, relative to the body
+     vertex's motion in this substep, is removed up to ``friction * depth``;
 3. ``v = (p - x) / h``, ``x = p``.
 
 All arrays float64 (indices int64) and C-contiguous; lengths in metres,
