@@ -64,6 +64,7 @@ from ..geometry.closest import VertexNormals
 from ..geometry.mesh import adjacency
 from ..kernels.cloth import cloth_frame
 from ..kernels.compiled import HAVE_NUMBA, RadiusGrid
+from ..dress import regions as R
 from .loose import cloth_weights, smoothstep
 
 GRAVITY = (0.0, -9.81, 0.0)  # m/s^2, internal space (Y up)
@@ -127,10 +128,16 @@ def colour_edges(edges: np.ndarray, n: int, seed: int = 0) -> tuple[np.ndarray, 
     return order, colour_ptr.astype(np.int64)
 
 
-def body_graph(faces: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def body_graph(faces: np.ndarray, n: int, keep: np.ndarray | None = None
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The body's vertex graph: CSR (indptr (n + 1,), indices) with sorted
-    neighbours, and the same as an (n, D) table padded with -1."""
+    neighbours, and the same as an (n, D) table padded with -1. ``keep``:
+    only these vertices (indices into the body; the graph is then over
+    ``len(keep)`` vertices numbered as in ``keep``)."""
     a = adjacency(faces, n).tocsr()
+    if keep is not None:
+        a = a[keep][:, keep].tocsr()
+        n = len(keep)
     a.sort_indices()
     indptr = a.indptr.astype(np.int64)
     indices = a.indices.astype(np.int64)
@@ -138,6 +145,19 @@ def body_graph(faces: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, np.nd
     table = np.full((n, max(int(deg.max(initial=0)), 1)), -1, dtype=np.int64)
     table[np.repeat(np.arange(n), deg), np.arange(len(indices)) - np.repeat(indptr[:-1], deg)] = indices
     return indptr, indices, table
+
+
+def default_collider(plan, n: int) -> np.ndarray:
+    """(n,) bool: the body vertices loose parts collide with: all but the
+    arms when the plan knows the body's regions. A hand hanging beside a
+    skirt would otherwise catch it and throw it out in a flap (and a hand
+    between skirt and hip, with the cloth on both sides of it, has no side
+    to push it to); a hand sinking into the cloth is the lesser evil."""
+    keep = np.ones(n, dtype=bool)
+    labels = getattr(plan, "body_labels", None)
+    if labels is not None and len(labels) == n:
+        keep &= ~np.isin(labels, [R.LEFT_ARM, R.RIGHT_ARM])
+    return keep
 
 
 class ClothSolver:
@@ -152,6 +172,8 @@ class ClothSolver:
     item_points0 : (M, 3) all item points dressed at frame 0 (the static
         dress: rest lengths and the starting state).
     weights : (M,) cloth weights (default :func:`loose.cloth_weights`).
+    collider : (N,) bool or indices, the body vertices the cloth collides
+        with (default :func:`default_collider`).
     rest_points : (M, 3) the static dress the edge lengths are kept from
         (default ``item_points0``).
     compiled : numba kernel (default: when installed) or its numpy twin.
@@ -164,7 +186,7 @@ class ClothSolver:
                  attach_alpha: float = ATTACH_ALPHA, attach_power: float = ATTACH_POWER,
                  stretch_alpha: float = STRETCH_ALPHA, compress_alpha: float = COMPRESS_ALPHA,
                  damping: float = DAMPING, friction: float = FRICTION, margin: float = MARGIN,
-                 reach: float = REACH, edge_samples: bool = True):
+                 reach: float = REACH, edge_samples: bool = True, collider: np.ndarray | None = None):
         pts0 = np.ascontiguousarray(item_points0, dtype=np.float64)
         body0 = np.ascontiguousarray(body_points0, dtype=np.float64)
         self.faces = np.ascontiguousarray(body_faces, dtype=np.int64)
@@ -212,16 +234,21 @@ class ClothSolver:
         else:
             self.samples = np.ascontiguousarray(own, dtype=np.int64)
             self.sample_ptr = np.array([0, self.n_free], dtype=np.int64)
-        # body: vertex graph, normals, nearest-vertex grid
+        # body: the collider's vertices, their graph, normals, nearest-vertex grid
+        if collider is None:
+            collider = default_collider(plan, len(body0))
+        self.collider = np.flatnonzero(collider) if np.asarray(collider).dtype == bool else np.asarray(collider)
+        self.collider = np.ascontiguousarray(self.collider, dtype=np.int64)
         self._normals = VertexNormals(self.faces, len(body0))
-        self.adjacency = body_graph(self.faces, len(body0))
+        self.adjacency = body_graph(self.faces, len(body0), self.collider)
+        body0 = np.ascontiguousarray(body0[self.collider])
         be = np.linalg.norm(body0[self.adjacency[1]] - body0[np.repeat(np.arange(len(body0)),
                                                                         np.diff(self.adjacency[0]))], axis=1)
         # the skin can be this much nearer than the nearest body vertex (the
         # centre of a triangle is 1/sqrt(3) of its side from its corners)
         self.gap = 0.6 * float(np.percentile(be, 99)) if len(be) else 0.0
         self.b0 = body0
-        self.n0 = self._normals(body0)
+        self.n0 = self._body_normals(body_points0)
         self.grid = RadiusGrid(body0, reach, cell=GRID_CELL)
         # clearance kept: MARGIN, or less where the static dress is closer
         # (same estimate as the collision: the nearest vertex's tangent plane)
@@ -238,6 +265,10 @@ class ClothSolver:
         self._frame, self._since = 1, 0.0
         self._scratch = (np.empty(len(self.edges)), np.empty((self.n_free, 3)), np.empty_like(self.x),
                          np.empty((len(self.samples), 3)))
+
+    def _body_normals(self, body_points: np.ndarray) -> np.ndarray:
+        """(C, 3) unit normals of the collider's vertices on the whole body (N, 3)."""
+        return np.ascontiguousarray(self._normals(np.asarray(body_points, dtype=np.float64))[self.collider])
 
     def _sample_points(self) -> np.ndarray:
         """(S, 3) the collision samples at the current positions."""
@@ -272,8 +303,8 @@ class ClothSolver:
         """Restart at rest from the items (M, 3) on the body (N, 3)."""
         if self.n_free == 0:
             return
-        self.b0 = np.ascontiguousarray(body_points, dtype=np.float64)
-        self.n0 = self._normals(self.b0)
+        self.b0 = np.ascontiguousarray(np.asarray(body_points, dtype=np.float64)[self.collider])
+        self.n0 = self._body_normals(body_points)
         self.grid.update(self.b0)
         self.x = np.ascontiguousarray(np.asarray(item_points, dtype=np.float64)[self.particles])
         self.t0 = self.x.copy()
@@ -346,8 +377,8 @@ class ClothSolver:
         if self.n_free == 0:
             return bound
         t_start, c_start = time.perf_counter(), time.process_time()
-        b1 = np.ascontiguousarray(body_points, dtype=np.float64)
-        n1 = self._normals(b1)
+        b1 = np.ascontiguousarray(np.asarray(body_points, dtype=np.float64)[self.collider])
+        n1 = self._body_normals(body_points)
         t1 = np.ascontiguousarray(bound[self.particles])
         move = float(np.sqrt(np.max(np.einsum("ij,ij->i", b1 - self.b0, b1 - self.b0))))
         # every sample near the body: its nearest body vertex on last frame's
