@@ -61,7 +61,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..geometry.closest import VertexNormals
-from ..geometry.mesh import adjacency
+from ..geometry.mesh import adjacency, similarity_fit
 from ..kernels.cloth import cloth_frame
 from ..kernels.compiled import HAVE_NUMBA, RadiusGrid
 from ..dress import regions as R
@@ -322,7 +322,8 @@ class ClothSolver:
         (the skirt is bound to the hips, the leg is forward): a collision
         cannot tell from there which side the cloth belongs on. Instead the
         cloth starts at rest on ``body_from`` (the bind pose, legs together:
-        the items' own shape), and the body moves to ``body_to`` over
+        the items' own shape), turned and moved onto ``body_to`` by their
+        best rigid fit, and the body moves to ``body_to`` over
         ``frames`` frames of ``dt`` (vertex positions blended with a
         smoothstep in time), the cloth pushed along; then ``settle`` more
         frames at ``body_to`` let it come to rest.
@@ -337,8 +338,11 @@ class ClothSolver:
         -------
         (M, 3) item points on ``body_to``, the cloth simulated.
         """
-        b_from = np.asarray(body_from, dtype=np.float64)
         b_to = np.asarray(body_to, dtype=np.float64)
+        # the bind pose turned and moved onto the first frame first: blending
+        # vertex positions across a half turn would pass the body through itself
+        _, rot, shift = similarity_fit(np.asarray(body_from, dtype=np.float64), b_to, scale=False)
+        b_from = np.asarray(body_from, dtype=np.float64) @ rot + shift
         self.reset(b_from, bound_at(b_from))
         bound_to = bound_at(b_to)
         if self.n_free == 0:
