@@ -40,10 +40,10 @@ tell from there which side the cloth belongs on).
 
 Measured (CMU walk, ``ref_female_longskirt`` on ``body_female_heavy``, 2,076
 simulated vertices, native 120 fps, one core of a loaded machine): the leg
-skin inside the skirt that comes out through it drops from 65 % to 1.7 % in
+skin inside the skirt that comes out through it drops from 65 % to 2.3 % in
 the worst frame, the skirt's edge stretch from p99 6.0x / max 21x to 2.0x /
-3.5x against the static dress, at 2.7 ms per frame (4.2 ms for 5,075
-vertices: the skirt and all of the bob's loose hair). Most of the remaining
+4.2x against the static dress (first 100 frames), at 2.9 ms per frame (4.2 ms
+for 5,075 vertices: the skirt and all of the bob's loose hair). Most of the remaining
 stretch is the skirt widening round the stride: it is as wide as it was cut,
 and the legs, which may not come through, are farther apart.
 

@@ -58,7 +58,10 @@ vertex normals, renormalised, and the targets). Each substep:
      vertex is on the far side: when the walk lands on a vertex whose normal
      opposes the previous one and the sample is within ``margin`` of the
      previous vertex's plane (previous frame's side), the previous vertex
-     and its normal are kept. Friction (position-level Coulomb): the
+     and its normal are kept. A sample more than ``MAX_SLIDE + gap`` from
+     its vertex along the skin is not pushed (that tangent plane says
+     nothing about it), and no push exceeds ``MAX_PUSH`` in one pass.
+     Friction (position-level Coulomb): the
      sample's displacement tangential to ``n_j``, relative to the body
      vertex's motion in this substep, is removed up to ``friction * depth``;
 3. ``v = (p - x) / h``, ``x = p``.
@@ -74,7 +77,9 @@ import numpy as np
 
 from .compiled import HAVE_NUMBA, _jit
 
-MAX_WALK = 24  # greedy steps per nearest-vertex walk (usually 0-2 are taken)
+MAX_WALK = 24     # greedy steps per nearest-vertex walk (usually 0-2 are taken)
+MAX_SLIDE = 0.03  # m: a sample farther than this (plus gap) from its body vertex along the skin is not pushed
+MAX_PUSH = 0.03   # m: deepest push of a sample in one pass (deeper ones come out over the next substeps)
 
 
 # ----------------------------------------------------------------------------
@@ -162,6 +167,14 @@ def _collide(k, p, x, hint, samples, margin, clear, q0, move, gap, friction, inv
     depth = margin[k] - d
     if depth <= 0.0:
         return
+    # the tangent plane of a vertex far to the side says nothing (a stale
+    # vertex): no push; and no push deeper than MAX_PUSH in one pass
+    ex = px - bx
+    ey = py - by
+    ez = pz - bz
+    if ex * ex + ey * ey + ez * ez - d * d > (MAX_SLIDE + gap) * (MAX_SLIDE + gap):
+        return
+    depth = min(depth, MAX_PUSH)
     # C = n . (q - b) - margin with q = (p_a + p_b) / 2 (p_a itself when a == b)
     wa = inv_m[ia]
     if ia == ib:
@@ -356,7 +369,10 @@ def _collide_numpy(p, x, hint, samples, margin, clear, q0, move, gap, friction, 
     wa = inv_m[ia]
     same = ia == ib
     wsum = np.where(same, wa, 0.25 * (wa + inv_m[ib]))
-    hit = (depth > 0.0) & (wsum > 0.0)
+    rel = q - b
+    side = rel[:, 0] * rel[:, 0] + rel[:, 1] * rel[:, 1] + rel[:, 2] * rel[:, 2] - d * d
+    hit = (depth > 0.0) & (wsum > 0.0) & ~(side > (MAX_SLIDE + gap) * (MAX_SLIDE + gap))
+    depth = np.minimum(depth, MAX_PUSH)
     if not hit.any():
         return
     ia, ib, depth, n, b, h, q, wa, wsum, same = (ia[hit], ib[hit], depth[hit], n[hit], b[hit], h[hit], q[hit],
