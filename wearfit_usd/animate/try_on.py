@@ -12,7 +12,10 @@ Pipeline (:func:`animate`):
    plan of :mod:`dress.plan`) and re-evaluate the binding every frame (one
    sparse product, plus rigid parts and loose-part smoothing), with a
    temporally coherent penetration pass where needed
-   (:class:`penetration_guard.PenetrationGuard`);
+   (:class:`penetration_guard.PenetrationGuard`); with ``cloth`` the loose
+   parts (skirts, dresses, coat tails, long hair) are simulated as cloth
+   attached to their bound positions, the body as collider
+   (:class:`cloth.ClothSolver`), and the penetration pass leaves them alone;
 5. stream everything to one USD shot (:class:`usd_shot.ShotWriter`).
 
 ``mode="lbs"`` is the classic baseline instead: skin weights copied from the
@@ -25,6 +28,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 from ..model import Character
+from .cloth import ClothSolver
 from .frame_eval import FrameEvaluator
 from .measures import MEASURES, MotionMeasures, worst_frames
 from ..dress.metrics import item_rigid_groups
@@ -59,6 +63,7 @@ class AnimateOptions:
     untangle: bool = False             # dressing's untangle pass on frame 0 (see dress.apply.apply)
     floor: str = "auto"                # "auto": first frame on the rest floor; "keep" (motion.floor)
     pose_align: bool = True            # False: the dressing's body fit by similarity only (--no-pose)
+    cloth: bool | None = None          # bind mode: loose parts as XPBD cloth (None: when the plan has any)
 
 
 @dataclass
@@ -74,6 +79,7 @@ class AnimateReport:
     measured_frames: list = field(default_factory=list)
     motion_series: dict = field(default_factory=dict)   # {item: {measure: [value per measured frame]}}
     motion_worst: dict = field(default_factory=dict)    # {item: {measure: {"value", "frame"}}}
+    cloth_vertices: int = 0  # item vertices simulated as cloth
 
     def as_dict(self) -> dict:
         return {"frames": self.frames, "fps": self.fps, "timings_s": self.timings,
@@ -81,6 +87,7 @@ class AnimateReport:
                 "per_frame_new_penetration_pct": [round(100 * x, 4) for x in self.per_frame_penetration],
                 "motion_worst": self.motion_worst, "measured_frames": self.measured_frames,
                 "motion_per_frame": self.motion_series,
+                "cloth_vertices": self.cloth_vertices,
                 "mapping": self.mapping}
 
 
@@ -180,9 +187,26 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
         frame_eval = FrameEvaluator(frame_plan)
         evaluator = lambda f, body_f: frame_eval(body_f)  # noqa: E731
         items_for_skin = []
+    cloth = None
+    if opt.mode == "bind" and opt.cloth is not False:
+        # the edges keep their static-dress lengths; the cloth is dressed into
+        # frame 0 by simulation from the target's bind pose
+        cloth = ClothSolver(frame_plan, body.faces, body0, all_base)
+        if cloth.active:
+            cloth_pts0 = cloth.preroll(body.points, body0, lambda b: evaluator(0, b), 1.0 / rt.fps)
+        else:
+            cloth = None
     rep.timings["bind"] = time.perf_counter() - t0
     # clearances to keep (and "new penetration" = inside now, outside when dressed)
-    guard = PenetrationGuard(body.faces, base_body, all_base, margin=opt.penetration_margin)
+    pushed_rows = guard = push_guard = None
+    if cloth is None or opt.measure_every:
+        guard = PenetrationGuard(body.faces, base_body, all_base, margin=opt.penetration_margin)
+    if cloth is not None:
+        # the cloth keeps its own distance from the body: the guard would pull
+        # it back to its frame-0 clearance; "new penetration" still counts it
+        pushed_rows = np.flatnonzero(cloth.weights <= 0)
+        push_guard = PenetrationGuard(body.faces, base_body, all_base[pushed_rows], margin=opt.penetration_margin)
+        rep.cloth_vertices = cloth.n_free
     measures = None
     if opt.measure_every and opt.motion_measures:
         t0 = time.perf_counter()
@@ -204,8 +228,12 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
             body_f = body0 if f == 0 else body_skinner(skin_mats[f])
             tb = time.perf_counter()
             pts = evaluator(f, body_f)
+            if cloth is not None:
+                pts = cloth_pts0 if f == 0 else cloth.step(body_f, pts, 1.0 / rt.fps)
             tc = time.perf_counter()
-            if opt.mode == "bind":
+            if opt.mode == "bind" and pushed_rows is not None:
+                pts[pushed_rows] = push_guard.apply(body_f, pts[pushed_rows])[0]
+            elif opt.mode == "bind":
                 pts, _ = guard.apply(body_f, pts)
             td = time.perf_counter()
             t_pen += td - tc
@@ -228,6 +256,8 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
         rep.motion_worst = worst_frames(rep.motion_series, rep.measured_frames)
     rep.timings.update({"lbs_total": t_lbs, "evaluate_total": t_eval, "penetration_total": t_pen,
                         "write_total": t_write, "measure_total": t_measure,
+                        "cloth_total": cloth.timings["solve_s"] if cloth is not None else 0.0,
+                        "cloth_cpu_total": cloth.timings["solve_cpu_s"] if cloth is not None else 0.0,
                         "lbs_fps": n_frames / max(t_lbs, 1e-9),
                         "evaluate_fps": n_frames / max(t_eval, 1e-9),
                         "write_fps": n_frames / max(t_write, 1e-9),

@@ -1,6 +1,7 @@
 """`wearfit animate REFERENCE TARGET CLIP.bvh -o SHOT.usd`: dynamic try-on."""
 from __future__ import annotations
 
+import argparse
 import json
 from pathlib import Path
 
@@ -40,6 +41,10 @@ def register(sub, common):
     p.add_argument("--untangle", action="store_true",
                    help="run dressing's untangle pass on frame 0 too (off by default: on the CMU pirouette it "
                         "raised the worst frame's new penetrations from 0.31 %% to 0.33 %%)")
+    p.add_argument("--cloth", action=argparse.BooleanOptionalAction, default=None,
+                   help="simulate the loose parts (skirts, dresses, coat tails, long hair) as XPBD cloth hanging "
+                        "from their attachment, the body as collider (default: on when the items have loose parts; "
+                        "bind mode only)")
     p.add_argument("--write-skinned-items", action="store_true",
                    help="with --mode lbs: also write the items as skinned meshes (for engines without point caches)")
     p.add_argument("--velocities", action="store_true", help="author point velocities (units per second)")
@@ -89,12 +94,15 @@ def run(args) -> int:
                           mapping=mapping, clip_frames=args.clip_frames, velocities=args.velocities,
                           write_skinned_items=args.write_skinned_items, dress_pose=args.dress_pose,
                           untangle=args.untangle, measure_every=every, floor=args.floor,
-                          pose_align=not args.no_pose)
+                          pose_align=not args.no_pose, cloth=args.cloth)
     rep = animate(reference, target, motion, args.output, opts)
     t = rep.timings
     info(f"wrote {args.output}: {rep.frames} frames at {rep.fps:g} fps, {len(reference.items)} items; "
          f"total {t['total']:.2f} s (binding evaluation {t['evaluate_fps']:.0f} frames/s, "
          f"LBS {t['lbs_fps']:.0f} frames/s, writing {t['write_fps']:.0f} frames/s)")
+    if rep.cloth_vertices:
+        info(f"cloth: {rep.cloth_vertices} loose item vertices simulated, "
+             f"{1000 * t['cloth_total'] / max(rep.frames - 1, 1):.2f} ms/frame")
     if args.report:
         Path(args.report).write_text(json.dumps(rep.as_dict(), indent=2, default=float))
     limits = MotionLimits()
