@@ -46,6 +46,7 @@ class AnimateOptions:
     dress_pose: str = "first"          # "first": dress in frame 0's pose; "bind": on the bind pose
     measure_every: int = 0             # exact penetration statistics every N frames (0 = off)
     untangle: bool = False             # dressing's untangle pass on frame 0 (see redress.apply)
+    max_frames: int | None = None      # refuse longer shots (retarget.OutputError)
 
 
 @dataclass
@@ -91,7 +92,8 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
 
     # 1. retarget ------------------------------------------------------------
     t0 = time.perf_counter()
-    rt = retarget(motion, target.skeleton, mapping=opt.mapping, start=opt.start, end=opt.end, fps=opt.fps)
+    rt = retarget(motion, target.skeleton, mapping=opt.mapping, start=opt.start, end=opt.end, fps=opt.fps,
+                  max_frames=opt.max_frames)
     world = rt.world
     n_frames = world.shape[0]
     rep.frames, rep.fps = n_frames, float(rt.fps)
@@ -100,12 +102,14 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
     info(f"retargeted {motion.path}: {n_frames} frames at {rt.fps:g} fps")
 
     body = target.body
-    skin_mats = skinning_matrices(target.skeleton.bind_world, world)  # (F, J, 4, 4)
+    # per frame (one (F, J, 4, 4) array less: memory flat in the frame count)
+    def skin_mats(f):
+        return skinning_matrices(target.skeleton.bind_world, world[f])  # (J, 4, 4)
 
     # 2./3. dress -------------------------------------------------------------
     t0 = time.perf_counter()
     body_skinner = Skinner(body.points, body.joint_indices, body.joint_weights, target.skeleton.n_joints)
-    body0 = body_skinner(skin_mats[0])
+    body0 = body_skinner(skin_mats(0))
     from ..dress.redress import apply as apply_plan, plan as plan_dress
     # one plan, on the reference in its rest pose: regions and bound triangles
     # are best found with the limbs apart (a posed body, hands hanging beside
@@ -147,7 +151,7 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
         from .skin_transfer import transfer_weights
         ji, jw = transfer_weights(body.points, body.faces, body.joint_indices, body.joint_weights,
                                   all_base, target.skeleton.n_joints)
-        evaluator = _LBSEvaluator(all_base, ji, jw, skin_mats)
+        evaluator = _LBSEvaluator(all_base, ji, jw, skin_mats, target.skeleton.n_joints)
         items_for_skin = [replace(m, joint_indices=ji[offsets[i]:offsets[i + 1]],
                                   joint_weights=jw[offsets[i]:offsets[i + 1]])
                           for i, m in enumerate(items)]
@@ -182,12 +186,13 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
         t_write += time.perf_counter() - tw
         for f in progress(range(n_frames), total=n_frames, desc="animate", unit="frame"):
             ta = time.perf_counter()
-            body_f = body0 if f == 0 else body_skinner(skin_mats[f])
+            body_f = body0 if f == 0 else body_skinner(skin_mats(f))
             tb = time.perf_counter()
             pts = evaluator(f, body_f)
             tc = time.perf_counter()
             if opt.mode == "bind":
                 pts, _ = guard.apply(body_f, pts)
+            check_finite_points(pts, f, rt, motion.path)
             td = time.perf_counter()
             t_pen += td - tc
             if opt.measure_every and (f % opt.measure_every == 0 or f == n_frames - 1):
@@ -212,13 +217,24 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
     return rep
 
 
+def check_finite_points(points: np.ndarray, frame: int, rt, path) -> None:
+    """Raise :class:`NonFiniteError` when the (M, 3) item points of output
+    ``frame`` hold NaN/inf (one reduction per frame)."""
+    if np.isfinite(points.sum()):
+        return
+    from ..errors import NonFiniteError
+    bad = int(np.flatnonzero(~np.isfinite(points).all(axis=1))[0])
+    raise NonFiniteError(path, f"non-finite item point {bad} at output frame {frame} "
+                               f"(clip frame {float(rt.source_frames[frame]):g})")
+
+
 class _LBSEvaluator:
-    def __init__(self, points, ji, jw, skin_mats):
-        self.skinner = Skinner(points, ji, jw, skin_mats.shape[-3])
+    def __init__(self, points, ji, jw, skin_mats, n_joints):
+        self.skinner = Skinner(points, ji, jw, n_joints)
         self.mats = skin_mats
 
     def __call__(self, f, body_f):
-        return self.skinner(self.mats[f])
+        return self.skinner(self.mats(f))
 
 
 def dress_items(reference: Character, target: Character, k: int = 5, **plan_kw):

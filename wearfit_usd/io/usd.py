@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from ..geometry.closest import vertex_normals
-from ..errors import GeometryError, InputError, USDInputError
+from ..errors import GeometryError, InputError, USDInputError, WriteError
 from ..model import Character, Mesh, Primvar, Skeleton
 from ..transforms import invert, stage_to_internal, transform_points
 
@@ -379,6 +379,19 @@ def atomic_output(path):
     return _cm()
 
 
+def save_layer(layer, dest) -> None:
+    """``layer.Save()``, raising :class:`WriteError` (naming ``dest``, the
+    file the user asked for) when USD cannot write it (disk full...)."""
+    try:
+        ok = layer.Save()
+    except Exception as exc:  # pxr.Tf.ErrorException
+        lines = [ln.strip() for ln in str(exc).strip().splitlines() if ln.strip()]
+        why = lines[0].split(": '", 1)[-1].rstrip("'") if lines else str(exc)
+        raise WriteError(dest, f"cannot write: {why}") from None
+    if not ok:
+        raise WriteError(dest, "cannot write (USD refused to save the layer)")
+
+
 def _vt_points(points):
     from pxr import Vt
     return Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(points, dtype=np.float32))
@@ -513,7 +526,7 @@ def write_character(path, character: Character, items: list[Mesh] | None = None,
         stage.SetEndTimeCode(0)
         stage.SetTimeCodesPerSecond(character.time_codes_per_second)
         stage.SetFramesPerSecond(character.time_codes_per_second)
-        stage.GetRootLayer().Save()
+        save_layer(stage.GetRootLayer(), path)
     return Path(path)
 
 

@@ -37,7 +37,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..io.bvh import BVHMotion
-from ..errors import InputError
+from ..errors import InputError, NonFiniteError, OutputError
+from ..resources import require_memory
 from .joint_maps import JointMapping, map_joints, normalize
 from ..model import Skeleton
 from ..transforms import (invert, matrix_from_quat, quat_from_matrix, quat_slerp,
@@ -98,13 +99,21 @@ def _depth(parents):
     return d
 
 
+def output_frame_count(n: int, src_fps: float, fps: float | None) -> int:
+    """Frames :func:`resample_clip` makes of ``n`` clip frames at ``src_fps``
+    resampled to ``fps`` (None or equal: ``n``), computed without allocating."""
+    if fps is None or abs(fps - src_fps) < 1e-9:
+        return int(n)
+    count = np.floor((n - 1) / src_fps * fps + 1e-9) + 1
+    return int(count) if np.isfinite(count) else np.iinfo(np.int64).max
+
+
 def resample_clip(grot: np.ndarray, root_pos: np.ndarray, src_fps: float, fps: float):
     """Resample clip world rotations (F, J, 3, 3) by quaternion slerp and root
     positions (F, 3) linearly to ``fps``. Returns (rot, pos, frames) with
     frames (F',) the fractional source frame of each output frame."""
     n = grot.shape[0]
-    duration = (n - 1) / src_fps
-    count = int(np.floor(duration * fps + 1e-9)) + 1
+    count = output_frame_count(n, src_fps, fps)
     frames = np.arange(count) * (src_fps / fps)
     frames = np.minimum(frames, n - 1)
     i0 = np.floor(frames).astype(int)
@@ -118,7 +127,7 @@ def resample_clip(grot: np.ndarray, root_pos: np.ndarray, src_fps: float, fps: f
 
 def retarget(motion: BVHMotion, skeleton: Skeleton, mapping: JointMapping | dict | None = None,
              start: int = 0, end: int | None = None, fps: float | None = None,
-             mode: str = "direction", rest="zero") -> Retargeted:
+             mode: str = "direction", rest="zero", max_frames: int | None = None) -> Retargeted:
     """Retarget ``motion`` onto ``skeleton``.
 
     mapping: a :class:`JointMapping`, a {target: source} dict (user map
@@ -134,6 +143,10 @@ def retarget(motion: BVHMotion, skeleton: Skeleton, mapping: JointMapping | dict
         module docstring.
     rest: the clip's rest pose: "zero" (all channels zero, BVH's rest) or a
         frame index (e.g. 0 for CMU's synthetic T-pose frame).
+    max_frames: refuse (:class:`OutputError`) more output frames than this,
+        before allocating anything per frame.
+    Raises :class:`NonFiniteError` naming the frame and joint when the
+    joint transforms are not finite.
     Returns :class:`Retargeted` with (F, J, 4, 4) ``world`` and ``local``.
     """
     if mode not in ("bind", "direction"):
@@ -144,13 +157,25 @@ def retarget(motion: BVHMotion, skeleton: Skeleton, mapping: JointMapping | dict
     if start < 0 or end > n_all or start >= end:
         raise InputError(motion.path, f"frame range [{start}, {end}) is empty or outside the clip's "
                                       f"{n_all} frames")
-    if fps is not None and not fps > 0:
-        raise InputError(motion.path, f"fps must be > 0, got {fps}")
+    if fps is not None and not (fps > 0 and np.isfinite(fps)):
+        raise InputError(motion.path, f"fps must be > 0 and finite, got {fps}")
     tnames = list(skeleton.joint_names)
-    if mapping is None:
-        mapping = map_joints(motion.joint_names, tnames)
-    elif isinstance(mapping, dict):
-        mapping = map_joints(motion.joint_names, tnames, user_map=mapping)
+    n_out = output_frame_count(end - start, motion.fps, fps)
+    if max_frames is not None and n_out > max_frames:
+        raise OutputError(motion.path, f"the shot would have {n_out} frames ({end - start} clip frames "
+                                       f"of {motion.frame_time:g} s at {fps or motion.fps:g} fps), more "
+                                       f"than the limit of {max_frames} (raise it with --max-frames)")
+    # the per-frame arrays below: source FK, quaternions, target rotations,
+    # positions, world and local transforms
+    require_memory(n_out * (motion.n_joints * 200 + len(tnames) * 400) + (end - start) * motion.n_joints * 200,
+                   f"retargeting {n_out} frames")
+    try:
+        if mapping is None:
+            mapping = map_joints(motion.joint_names, tnames)
+        elif isinstance(mapping, dict):
+            mapping = map_joints(motion.joint_names, tnames, user_map=mapping)
+    except KeyError as exc:  # a user map naming joints the clip or skeleton lacks
+        raise InputError(motion.path, f"joint map: {exc.args[0]} (skeleton {skeleton.path or ''})") from None
     sidx = {n: i for i, n in enumerate(motion.joint_names)}
     tparents = np.asarray(skeleton.parents)
     J = len(tnames)
@@ -267,6 +292,7 @@ def retarget(motion: BVHMotion, skeleton: Skeleton, mapping: JointMapping | dict
         W[:, t, :3, :3] = bscale[t] * rot[:, t]
         W[:, t, 3, :3] = pos[:, t]
         W[:, t, :3, 3] = 0.0
+    check_finite_transforms(W, src_frames, tnames, motion.path)
     local = skeleton.local_from_world(W)
     report = mapping.report()
     report.update({"mode": mode, "hip_height_ratio": ratio, "root_joint": tnames[troot],
@@ -274,6 +300,21 @@ def retarget(motion: BVHMotion, skeleton: Skeleton, mapping: JointMapping | dict
     return Retargeted(world=W, local=local, fps=out_fps, times=np.arange(F) / out_fps,
                       joint_names=tnames, mapping=mapping, source_frames=src_frames,
                       hip_height_ratio=ratio, report=report)
+
+
+def check_finite_transforms(world: np.ndarray, source_frames: np.ndarray, joint_names, path) -> None:
+    """Raise :class:`NonFiniteError` naming the first frame and joint whose
+    (F, J, 4, 4) transform holds NaN/inf or is singular (zero scale)."""
+    ok = np.isfinite(world).all(axis=(-2, -1))
+    if ok.all():
+        scale = np.abs(world[..., :3, :3]).max(axis=(-2, -1))
+        ok = scale > 1e-12
+        if ok.all():
+            return
+    f, j = (int(v) for v in np.argwhere(~ok)[0])
+    raise NonFiniteError(path, f"retargeting gave a non-finite or singular transform at output frame {f} "
+                               f"(clip frame {float(source_frames[f]):g}), joint {joint_names[j]} "
+                               "(extreme values in the clip or the skeleton?)")
 
 
 def _clip_hip_height(motion: BVHMotion, rest: np.ndarray, root: int) -> float:
