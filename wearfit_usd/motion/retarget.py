@@ -199,6 +199,11 @@ def retarget(motion: BVHMotion, skeleton: Skeleton, mapping: JointMapping | dict
     # ---- clip kinematics
     frames = np.arange(start, end)
     grot, gpos = motion.global_rotations_positions(frames)  # (F, Js, 3, 3), (F, Js, 3)
+    bad = ~(np.isfinite(grot).all(axis=(-2, -1)) & np.isfinite(gpos).all(axis=-1))
+    if bad.any():
+        f, j = (int(v) for v in np.argwhere(bad)[0])
+        raise NonFiniteError(motion.path, f"clip frame {start + f}, joint {motion.joint_names[j]}: "
+                                          "non-finite joint transform (extreme values in the clip?)")
     root_pos = gpos[:, sroot]
     src_fps = motion.fps
     if fps is None or abs(fps - src_fps) < 1e-9:
