@@ -37,6 +37,16 @@ def _np(value, dtype=np.float64) -> np.ndarray:
     return np.array(value, dtype=dtype)
 
 
+def _get(path, attr, time=None):
+    """``attr.Get(time)``, None when unauthored; :class:`USDInputError` for
+    a value USD parsed but could not type (e.g. an out-of-range number)."""
+    v = attr.Get() if time is None else attr.Get(time)
+    if v is not None and type(v).__name__ == "UnregisteredValue":
+        where = attr.GetAttr() if hasattr(attr, "GetAttr") else attr  # a primvar or an attribute
+        raise USDInputError(path, f"{where.GetPath()}: malformed value (out of range or wrong type)")
+    return v
+
+
 # --------------------------------------------------------------------------
 # topology helpers (pure numpy)
 
@@ -95,9 +105,9 @@ def _read_mesh(stage, prim, to_internal, path, time=None) -> Mesh:
     t = Usd.TimeCode.EarliestTime() if time is None else Usd.TimeCode(time)
     mesh = UsdGeom.Mesh(prim)
     name = prim.GetName()
-    pts_v = mesh.GetPointsAttr().Get(t)
-    counts_v = mesh.GetFaceVertexCountsAttr().Get(t)
-    idx_v = mesh.GetFaceVertexIndicesAttr().Get(t)
+    pts_v = _get(path, mesh.GetPointsAttr(), t)
+    counts_v = _get(path, mesh.GetFaceVertexCountsAttr(), t)
+    idx_v = _get(path, mesh.GetFaceVertexIndicesAttr(), t)
     if pts_v is None or counts_v is None or idx_v is None or len(pts_v) == 0:
         raise GeometryError(path, f"mesh {prim.GetPath()} is empty (no points or faces)")
     pts = _np(pts_v)
@@ -164,13 +174,13 @@ def _read_skeleton(skel_query, skel_prim, to_internal, path) -> Skeleton:
     if not ok:
         raise USDInputError(path, f"skeleton {skel_prim.GetPath()}: invalid joint topology: {why}")
     parents = np.array(topo.GetParentIndices(), dtype=np.int64)
-    bind = skel.GetBindTransformsAttr().Get()
+    bind = _get(path, skel.GetBindTransformsAttr())
     if bind is None or len(bind) != len(joints):
         raise USDInputError(path, f"skeleton {skel_prim.GetPath()}: bindTransforms has "
                                   f"{0 if bind is None else len(bind)} entries for {len(joints)} joints")
     bind = _np(bind).reshape(-1, 4, 4)
     _check_transforms(path, skel_prim, "bindTransforms", joints, bind)
-    rest = skel.GetRestTransformsAttr().Get()
+    rest = _get(path, skel.GetRestTransformsAttr())
     if rest is None or len(rest) != len(joints):
         # rest defaults to the bind pose, expressed locally
         inv = invert(bind)
@@ -211,8 +221,8 @@ def _read_influences(skinning_query, skel: Skeleton, n_points, path, prim_path):
                                   "(primvars:skel:jointIndices/jointWeights)")
     ind_pv = skinning_query.GetJointIndicesPrimvar()
     w_pv = skinning_query.GetJointWeightsPrimvar()
-    ind = _np(ind_pv.Get(), np.int64)
-    w = _np(w_pv.Get())
+    ind = _np(_get(path, ind_pv), np.int64)
+    w = _np(_get(path, w_pv))
     k = skinning_query.GetNumInfluencesPerComponent()
     if len(ind) != len(w):
         raise USDInputError(path, f"{prim_path}: jointIndices has {len(ind)} values but "
@@ -414,7 +424,7 @@ def _read_skinned_mesh(stage, prim, skinning_query, skeleton: Skeleton, path) ->
     # meshes: bind shape = points @ geomBindTransform in skeleton space.
     from pxr import UsdGeom
     from pxr import Usd
-    pts = _np(UsdGeom.Mesh(prim).GetPointsAttr().Get(Usd.TimeCode.EarliestTime()))
+    pts = _np(_get(path, UsdGeom.Mesh(prim).GetPointsAttr(), Usd.TimeCode.EarliestTime()))
     gb = _np(skinning_query.GetGeomBindTransform())
     mesh.points = transform_points(pts, gb @ skeleton.skel_to_world)
     ind, w = _read_influences(skinning_query, skeleton, len(pts), path, prim.GetPath())
