@@ -28,6 +28,7 @@ from ..model import Character
 from .frame_eval import FrameEvaluator
 from .penetration_guard import PenetrationGuard
 from ..progress import info, progress
+from ..motion.retarget import BLOCK
 from ..motion.skinning import Skinner, skin_points, skinning_matrices
 
 
@@ -74,7 +75,7 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
             ) -> AnimateReport:
     """Dress ``target`` with ``reference``'s items, animate it with ``motion``
     (a :class:`bvh.BVHMotion`) and write the shot to ``out_path``."""
-    from ..motion.retarget import retarget
+    from ..motion.retarget import retarget, retarget_stream
     from ..io.usd_shot import ShotWriter
 
     opt = options or AnimateOptions()
@@ -92,19 +93,20 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
 
     # 1. retarget ------------------------------------------------------------
     t0 = time.perf_counter()
-    rt = retarget(motion, target.skeleton, mapping=opt.mapping, start=opt.start, end=opt.end, fps=opt.fps,
-                  max_frames=opt.max_frames)
-    world = rt.world
-    n_frames = world.shape[0]
+    # frames computed a block at a time in the frame loop (memory flat in the
+    # shot's length); the block's SkelAnimation samples are written with it
+    rt = retarget_stream(motion, target.skeleton, mapping=opt.mapping, start=opt.start, end=opt.end,
+                         fps=opt.fps, max_frames=opt.max_frames)
+    world = _FrameWorlds(rt)
+    n_frames = rt.n_frames
     rep.frames, rep.fps = n_frames, float(rt.fps)
     rep.mapping = rt.report
     rep.timings["retarget"] = time.perf_counter() - t0
     info(f"retargeted {motion.path}: {n_frames} frames at {rt.fps:g} fps")
 
     body = target.body
-    # per frame (one (F, J, 4, 4) array less: memory flat in the frame count)
     def skin_mats(f):
-        return skinning_matrices(target.skeleton.bind_world, world[f])  # (J, 4, 4)
+        return skinning_matrices(target.skeleton.bind_world, world(f))  # (J, 4, 4)
 
     # 2./3. dress -------------------------------------------------------------
     t0 = time.perf_counter()
@@ -133,7 +135,7 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
         posed_plan = ref_plan.rebound(ref_body0, posed_pts)
         posed_ref = replace(reference, body=reference.body.copy_with_points(ref_body0),
                             skeleton=_posed_skeleton(reference.skeleton, ref_world0), items=posed_plan.items)
-        base_skeleton = _posed_skeleton(target.skeleton, world[0])
+        base_skeleton = _posed_skeleton(target.skeleton, world(0))
         posed_target = replace(target, body=target.body.copy_with_points(body0), skeleton=base_skeleton)
         dressed = dress_items(posed_ref, posed_target, k=opt.k, untangle=opt.untangle, prepared=posed_plan)
         base_body = body0
@@ -181,9 +183,14 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
     with ShotWriter(out_path, target, items, fps=rt.fps, n_frames=n_frames, clip_frames=clip_frames,
                     velocities=opt.velocities,
                     skinned_items=items_for_skin if (opt.mode == "lbs" and opt.write_skinned_items) else None) as w:
-        tw = time.perf_counter()
-        w.write_animation(rt.local)
-        t_write += time.perf_counter() - tw
+        def write_block(a, block):
+            nonlocal t_write
+            tw = time.perf_counter()
+            w.write_animation(rt.local(world=block), first_frame=a)
+            t_write += time.perf_counter() - tw
+        world.on_block = write_block
+        world.reset()
+        world(0)  # frame 0's block (and animation samples) even where frame 0 skips the skinning
         for f in progress(range(n_frames), total=n_frames, desc="animate", unit="frame"):
             ta = time.perf_counter()
             body_f = body0 if f == 0 else body_skinner(skin_mats(f))
@@ -226,6 +233,30 @@ def check_finite_points(points: np.ndarray, frame: int, rt, path) -> None:
     bad = int(np.flatnonzero(~np.isfinite(points).all(axis=1))[0])
     raise NonFiniteError(path, f"non-finite item point {bad} at output frame {frame} "
                                f"(clip frame {float(rt.source_frames[frame]):g})")
+
+
+class _FrameWorlds:
+    """``(f) -> (J, 4, 4)`` world joint transforms of output frame ``f`` of
+    a :class:`retarget.RetargetStream`, computed a block of frames at a time
+    (frames asked in increasing order cost one block each);
+    ``on_block(first_frame, block)`` is called for every block made."""
+
+    def __init__(self, stream, on_block=None):
+        self.stream = stream
+        self.on_block = on_block
+        self.reset()
+
+    def reset(self):
+        self.block = np.empty((0,))
+        self.first = 0
+
+    def __call__(self, f: int) -> np.ndarray:
+        if not self.first <= f < self.first + len(self.block):
+            self.block = self.stream.world(f, f + BLOCK)
+            self.first = f
+            if self.on_block is not None:
+                self.on_block(f, self.block)
+        return self.block[f - self.first]
 
 
 class _LBSEvaluator:

@@ -144,35 +144,43 @@ class ShotWriter:
         self._clip_paths = []
 
     # ------------------------------------------------------------------
-    def write_animation(self, local: np.ndarray) -> None:
+    def write_animation(self, local: np.ndarray, first_frame: int | None = None) -> None:
         """Author the SkelAnimation from (F, J, 4, 4) joint transforms local to
         their parents, as :meth:`Skeleton.local_from_world` of the target
-        skeleton returns them (target skeleton space)."""
+        skeleton returns them (target skeleton space): every frame at once,
+        or with ``first_frame`` a block of frames from that time code on
+        (blocks may come in any order; together they must cover the shot)."""
         from pxr import UsdSkel, Vt
         skel = self.target.skeleton
         if skel is None:
             raise ValueError("target has no skeleton: cannot write a SkelAnimation")
         local = np.asarray(local, dtype=np.float64)
-        if local.shape[0] != self.n_frames:
-            raise ValueError(f"animation has {local.shape[0]} frames, shot has {self.n_frames}")
+        if first_frame is None:
+            if local.shape[0] != self.n_frames:
+                raise ValueError(f"animation has {local.shape[0]} frames, shot has {self.n_frames}")
+            first_frame = 0
+        elif not 0 <= first_frame <= self.n_frames - local.shape[0]:
+            raise ValueError(f"animation frames {first_frame}..{first_frame + local.shape[0] - 1} "
+                             f"outside the shot's {self.n_frames}")
         # re-express in the written skeleton's space (identity skeleton xform)
         world = skel.world_from_local(local)
         out_local = self._skel_out.local_from_world(world)
         t, r, s = decompose(out_local)
         q = quat_from_matrix(r)  # (F, J, 4) w,x,y,z
-        anim = UsdSkel.Animation.Define(self.stage, self.layout.anim_path)
-        anim.CreateJointsAttr(Vt.TokenArray(skel.joint_paths))
-        ta = anim.CreateTranslationsAttr()
-        ra = anim.CreateRotationsAttr()
-        sa = anim.CreateScalesAttr()
+        if getattr(self, "_anim_attrs", None) is None:
+            anim = UsdSkel.Animation.Define(self.stage, self.layout.anim_path)
+            anim.CreateJointsAttr(Vt.TokenArray(skel.joint_paths))
+            self._anim_attrs = (anim.CreateTranslationsAttr(), anim.CreateRotationsAttr(),
+                                anim.CreateScalesAttr())
+            binding = UsdSkel.BindingAPI.Apply(self.stage.GetPrimAtPath(self.layout.skel_path))
+            binding.CreateAnimationSourceRel().SetTargets([self.layout.anim_path])
+        ta, ra, sa = self._anim_attrs
         # Vt.QuatfArray.FromNumpy takes (imaginary i, j, k, real)
         qf = np.ascontiguousarray(q[..., [1, 2, 3, 0]].astype(np.float32))
-        for f in range(self.n_frames):
-            ta.Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(t[f], dtype=np.float32)), f)
-            ra.Set(Vt.QuatfArray.FromNumpy(qf[f]), f)
-            sa.Set(Vt.Vec3hArray.FromNumpy(np.ascontiguousarray(s[f], dtype=np.float16)), f)
-        binding = UsdSkel.BindingAPI.Apply(self.stage.GetPrimAtPath(self.layout.skel_path))
-        binding.CreateAnimationSourceRel().SetTargets([self.layout.anim_path])
+        for f in range(local.shape[0]):
+            ta.Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(t[f], dtype=np.float32)), first_frame + f)
+            ra.Set(Vt.QuatfArray.FromNumpy(qf[f]), first_frame + f)
+            sa.Set(Vt.Vec3hArray.FromNumpy(np.ascontiguousarray(s[f], dtype=np.float16)), first_frame + f)
 
     # ------------------------------------------------------------------
     def _target_layer_for(self, frame: int):
