@@ -276,7 +276,10 @@ def run(full: bool, out_dir: Path) -> list[dict]:
     out_dir.mkdir(parents=True, exist_ok=True)
     rows = binding_microbench() + walk_command_time(out_dir) + walk_fresh_process_time(out_dir)
     if full:
-        rows.append(long_clip(out_dir))
+        # memory flat in the shot length: 20,000 frames within 10 % of 2,000's peak
+        short, long_ = long_clip(out_dir, 2000), long_clip(out_dir, 20000)
+        long_["peak_vs_2000_frames_pct"] = round(100 * (long_["peak_rss_mb"] / short["peak_rss_mb"] - 1), 1)
+        rows += [short, long_]
     cases = FULL if full else QUICK
     every = 1 if full else 2
     for clip, ref, body in cases:
