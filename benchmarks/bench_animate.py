@@ -197,9 +197,11 @@ def run_case(clip: str, ref_name: str, body_name: str, out_dir: Path, mode: str,
             "animate_s": t["total"], "with_io_s": total}
 
 
-def long_clip(out_dir: Path, frames: int = 10000) -> dict:
+def long_clip(out_dir: Path, frames: int = 10000, clip_frames: int = 500) -> dict:
     """A `frames`-long clip (the walk repeated) animated at its native 120 fps
-    in a subprocess: wall time, peak resident memory and the value clips."""
+    in a subprocess, items in value clips of ``clip_frames`` frames (the
+    automatic size past 2,000 frames): wall time, peak resident memory and
+    the value clips."""
     import subprocess
     from wearfit_usd.io.bvh import read_bvh
     src = BVH_DIR / "cmu_07_01_walk.bvh"
@@ -217,7 +219,7 @@ def long_clip(out_dir: Path, frames: int = 10000) -> dict:
     # fit and dress stages of a full run), whatever the child uses
     code = ("import sys, time; from wearfit_usd.cli import main; t = time.perf_counter(); "
             f"rc = main(['animate', r'{USD_DIR / 'ref_male.usda'}', r'{USD_DIR / 'body_male_heavy.usdc'}', "
-            f"r'{clip}', '-o', r'{shot}', '--fps', 'native', '-q']); "
+            f"r'{clip}', '-o', r'{shot}', '--fps', 'native', '--clip-frames', '{clip_frames}', '-q']); "
             "hwm = [ln.split()[1] for ln in open('/proc/self/status') if ln.startswith('VmHWM')][0]; "
             "print(rc, time.perf_counter() - t, hwm)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
