@@ -58,6 +58,12 @@ class Terminated(KeyboardInterrupt):
 
 
 def _raise_terminated(signum, frame):
+    # further SIGTERM/SIGHUP are ignored so that they cannot cut the clean-up
+    # short (the handlers are restored when the command returns)
+    for name in ("SIGTERM", "SIGHUP"):
+        sig = getattr(signal, name, None)
+        if sig is not None:
+            signal.signal(sig, signal.SIG_IGN)
     raise Terminated(signum)
 
 
