@@ -8,7 +8,6 @@ BVH clips; the few that need the data set are marked by conftest.
 """
 from __future__ import annotations
 
-import os
 import signal
 import subprocess
 import sys
@@ -18,12 +17,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tests.tiny_stage import ITEM_FACES, ITEM_POINTS, TINY_USDA, write_tiny
 from wearfit_usd.cli import main
 from wearfit_usd.errors import BVHError, GeometryError, NonFiniteError, OutputError, USDInputError
 from wearfit_usd.io.bvh import read_bvh
 from wearfit_usd.io.usd import read_character
-
-from tests.tiny_stage import ITEM_FACES, ITEM_POINTS, TINY_USDA, write_tiny
 
 REPO = Path(__file__).resolve().parents[1]
 WALK = REPO / "wearfit_usd" / "motions" / "walk.bvh"

@@ -17,12 +17,11 @@ import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from tests.test_bad_input import MINI_BVH
+from tests.tiny_stage import TINY_USDA
 from wearfit_usd.errors import BVHError, WearfitError
 from wearfit_usd.io.bvh import read_bvh
 from wearfit_usd.io.usd import read_character
-
-from tests.test_bad_input import MINI_BVH
-from tests.tiny_stage import TINY_USDA
 
 FUZZ = settings(max_examples=300, derandomize=True, deadline=None, database=None,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])

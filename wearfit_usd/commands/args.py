@@ -8,6 +8,7 @@ that would overwrite an input) and raise :class:`OutputError`.
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import os
 from pathlib import Path
@@ -114,8 +115,7 @@ def check_inputs(*paths) -> None:
 
 def write_report(path, data) -> None:
     """Write JSON ``data`` to ``path`` atomically (temporary file + rename)."""
-    import json
-    from ..io.usd import atomic_output
+    from ..io.usd import atomic_output  # lazy like every command's work: `wearfit --help` stays fast
     text = json.dumps(data, indent=2, default=float)
     with atomic_output(path) as tmp:
         with open(tmp, "w", encoding="utf-8") as fh:

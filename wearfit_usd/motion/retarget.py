@@ -156,7 +156,7 @@ def retarget(motion: BVHMotion, skeleton: Skeleton, mapping: JointMapping | dict
 def retarget_stream(motion: BVHMotion, skeleton: Skeleton, mapping: JointMapping | dict | None = None,
                     start: int = 0, end: int | None = None, fps: float | None = None,
                     mode: str = "direction", rest="zero",
-                    max_frames: int | None = None) -> "RetargetStream":
+                    max_frames: int | None = None) -> RetargetStream:
     """Set up the retargeting of ``motion`` onto ``skeleton`` (arguments,
     checks and errors as :func:`retarget`) without computing any output
     frame: a :class:`RetargetStream` computes them a block at a time, so
@@ -240,8 +240,6 @@ def retarget_stream(motion: BVHMotion, skeleton: Skeleton, mapping: JointMapping
 
     bind = np.asarray(skeleton.bind_world, dtype=np.float64)
     bpos = bind[:, 3, :3]
-    bscale = np.linalg.norm(bind[:, :3, :3], axis=-1).mean(axis=-1)  # (J,) uniform scale
-    brot = rotation_part(bind)  # (J, 3, 3)
 
     # ---- per-bone rest correction Q (world, row-vector: d_clip @ Q = d_target)
     desc = _descendants(tparents)
@@ -406,7 +404,7 @@ class RetargetStream:
         """(a, b) output frame ranges of at most ``size`` frames."""
         return [(a, min(a + size, self.n_frames)) for a in range(0, self.n_frames, size)]
 
-    def retargeted(self) -> "Retargeted":
+    def retargeted(self) -> Retargeted:
         """Every frame at once, as :func:`retarget` returns it."""
         # world, local, their inverses, rotations, positions and the clip's
         # block: about 7 (J, 4, 4) float64 arrays per frame
