@@ -199,9 +199,11 @@ def run_case(clip: str, ref_name: str, body_name: str, out_dir: Path, mode: str,
             "animate_s": t["total"], "with_io_s": total}
 
 
-def long_clip(out_dir: Path, frames: int = 10000) -> dict:
+def long_clip(out_dir: Path, frames: int = 10000, clip_frames: int = 500) -> dict:
     """A `frames`-long clip (the walk repeated) animated at its native 120 fps
-    in a subprocess: wall time, peak resident memory and the value clips."""
+    in a subprocess, items in value clips of ``clip_frames`` frames (the
+    automatic size past 2,000 frames): wall time, peak resident memory and
+    the value clips."""
     import subprocess
 
     from wearfit_usd.io.bvh import read_bvh
@@ -220,7 +222,7 @@ def long_clip(out_dir: Path, frames: int = 10000) -> dict:
     # fit and dress stages of a full run), whatever the child uses
     code = ("import sys, time; from wearfit_usd.cli import main; t = time.perf_counter(); "
             f"rc = main(['animate', r'{USD_DIR / 'ref_male.usda'}', r'{USD_DIR / 'body_male_heavy.usdc'}', "
-            f"r'{clip}', '-o', r'{shot}', '--fps', 'native', '-q']); "
+            f"r'{clip}', '-o', r'{shot}', '--fps', 'native', '--clip-frames', '{clip_frames}', '-q']); "
             "hwm = [ln.split()[1] for ln in open('/proc/self/status') if ln.startswith('VmHWM')][0]; "
             "print(rc, time.perf_counter() - t, hwm)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
@@ -279,7 +281,10 @@ def run(full: bool, out_dir: Path) -> list[dict]:
     out_dir.mkdir(parents=True, exist_ok=True)
     rows = binding_microbench() + walk_command_time(out_dir) + walk_fresh_process_time(out_dir)
     if full:
-        rows.append(long_clip(out_dir))
+        # memory flat in the shot length: 20,000 frames within 10 % of 2,000's peak
+        short, long_ = long_clip(out_dir, 2000), long_clip(out_dir, 20000)
+        long_["peak_vs_2000_frames_pct"] = round(100 * (long_["peak_rss_mb"] / short["peak_rss_mb"] - 1), 1)
+        rows += [short, long_]
     cases = FULL if full else QUICK
     every = 1 if full else 2
     for clip, ref, body in cases:

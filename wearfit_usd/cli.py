@@ -9,10 +9,13 @@ Exit codes: 0 success, 1 failure, 2 bad input or usage, 130 interrupted.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import os
+import signal
 import sys
 import traceback
+import warnings
 
 from . import __version__
 from .errors import WearfitError
@@ -46,6 +49,71 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM or SIGHUP, raised like Ctrl-C so that every ``with`` block and
+    ``finally`` clause (temporary files, clip folders) cleans up."""
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signum = signum
+
+
+def _raise_terminated(signum, frame):
+    # further SIGTERM/SIGHUP are ignored so that they cannot cut the clean-up
+    # short (the handlers are restored when the command returns)
+    for name in ("SIGTERM", "SIGHUP"):
+        sig = getattr(signal, name, None)
+        if sig is not None:
+            signal.signal(sig, signal.SIG_IGN)
+    raise Terminated(signum)
+
+
+@contextlib.contextmanager
+def _signals_as_interrupts():
+    """SIGTERM and SIGHUP raise :class:`Terminated` in the main thread for
+    the duration of the command (previous handlers restored afterwards)."""
+    old = {}
+    for name in ("SIGTERM", "SIGHUP"):
+        sig = getattr(signal, name, None)
+        if sig is None:
+            continue
+        try:
+            old[sig] = signal.signal(sig, _raise_terminated)
+        except (ValueError, OSError):  # not the main thread
+            pass
+    try:
+        yield
+    finally:
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
+
+
+@contextlib.contextmanager
+def _warnings_as_messages(command: str):
+    """Python warnings print as ``wearfit CMD: warning: message`` (once
+    each), not with the source file and line."""
+    def show(message, category, filename, lineno, file=None, line=None):
+        out = file or sys.stderr
+        try:
+            print(f"wearfit {command}: warning: {message}", file=out, flush=True)
+        except (OSError, ValueError):
+            pass
+    old = warnings.showwarning
+    warnings.showwarning = show
+    try:
+        yield
+    finally:
+        warnings.showwarning = old
+
+
+def _pxr_error_message(exc: Exception) -> str | None:
+    """The message of a ``pxr.Tf.ErrorException`` (USD's errors), else None."""
+    if type(exc).__module__.startswith("pxr") or type(exc).__name__ == "ErrorException":
+        lines = [ln.strip() for ln in str(exc).strip().splitlines() if ln.strip()]
+        return lines[-1].split(": '", 1)[-1].rstrip("'") if lines else type(exc).__name__
+    return None
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -56,12 +124,17 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
-        return int(args.func(args) or 0)
+        with _signals_as_interrupts(), _warnings_as_messages(args.command):
+            return int(args.func(args) or 0)
     except WearfitError as exc:
         if verbose:
             traceback.print_exc()
         print(f"wearfit {args.command}: error: {exc}", file=sys.stderr)
         return exc.exit_code
+    except Terminated as exc:
+        name = signal.Signals(exc.signum).name
+        print(f"wearfit {args.command}: stopped by {name}; no partial output left", file=sys.stderr)
+        return 128 + exc.signum
     except KeyboardInterrupt:
         print(f"wearfit {args.command}: interrupted", file=sys.stderr)
         return 130
@@ -69,6 +142,14 @@ def main(argv: list[str] | None = None) -> int:
         if verbose:
             traceback.print_exc()
         print(f"wearfit {args.command}: error: {exc}", file=sys.stderr)
+        return 1
+    except Exception as exc:
+        msg = _pxr_error_message(exc)
+        if msg is None:
+            raise
+        if verbose:
+            traceback.print_exc()
+        print(f"wearfit {args.command}: error: USD: {msg}", file=sys.stderr)
         return 1
 
 

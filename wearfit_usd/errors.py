@@ -35,3 +35,22 @@ class USDInputError(InputError):
 
 class GeometryError(InputError):
     """Geometry that cannot be processed (NaN points, empty or degenerate mesh)."""
+
+
+class OutputError(InputError):
+    """An output the tool refuses to write (it would overwrite an input, wrong
+    extension, too large to hold in memory)."""
+
+
+class NonFiniteError(InputError):
+    """A computation produced NaN/inf (from extreme input values); names the
+    frame and joint or mesh where it happened."""
+
+
+class WriteError(WearfitError):
+    """An output could not be written (disk full, no permission...); nothing
+    half-written is left behind (exit code 1)."""
+
+    def __init__(self, path, message: str):
+        self.path = str(path)
+        super().__init__(f"{self.path}: {message}")

@@ -2,8 +2,8 @@
 
 A single module-level verbosity switch set by the CLI; library code calls
 :func:`progress` to wrap an iterable and :func:`info` / :func:`warn` to talk.
-Bars go to stderr through tqdm; they disappear when stderr is not a terminal
-unless verbosity is raised.
+Bars go to stderr through tqdm, only when stderr is a terminal: a log file
+or pipe would get one carriage-return-separated redraw per update.
 """
 from __future__ import annotations
 
@@ -41,10 +41,17 @@ def warn(msg: str) -> None:
     warnings.warn(msg, stacklevel=2)
 
 
+def _stderr_is_terminal() -> bool:
+    try:
+        return sys.stderr.isatty()
+    except (AttributeError, ValueError):  # replaced or closed stream
+        return False
+
+
 def progress(iterable: Iterable[T], total: int | None = None, desc: str = "",
              unit: str = "it") -> Iterator[T]:
-    """Wrap ``iterable`` in a progress bar unless quiet."""
-    if _LEVEL < 1:
+    """Wrap ``iterable`` in a progress bar unless quiet or stderr is not a terminal."""
+    if _LEVEL < 1 or not _stderr_is_terminal():
         return iter(iterable)
     try:
         from tqdm import tqdm

@@ -36,12 +36,12 @@ from .penetration_guard import PenetrationGuard
 from .skin_transfer import transfer_weights
 from ..dress.apply import apply as apply_plan, dress
 from ..dress.plan import plan as plan_dress
-from ..errors import USDInputError
+from ..errors import NonFiniteError, USDInputError
 from ..fit.body_fit import fit_character
 from ..io.usd_shot import ShotWriter
 from ..progress import info, progress
 from ..motion.floor import place_on_floor
-from ..motion.retarget import retarget
+from ..motion.retarget import BLOCK, retarget, retarget_stream
 from ..motion.skinning import Skinner, skin_points, skinning_matrices
 
 
@@ -64,6 +64,7 @@ class AnimateOptions:
     floor: str = "auto"                # "auto": first frame on the rest floor; "keep" (motion.floor)
     pose_align: bool = True            # False: the dressing's body fit by similarity only (--no-pose)
     cloth: bool | None = None          # bind mode: loose parts as XPBD cloth (None: when the plan has any)
+    max_frames: int | None = None      # refuse longer shots (retarget.OutputError)
 
 
 @dataclass
@@ -112,22 +113,26 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
 
     # 1. retarget ------------------------------------------------------------
     t0 = time.perf_counter()
-    rt = retarget(motion, target.skeleton, mapping=opt.mapping, start=opt.start, end=opt.end, fps=opt.fps)
+    # frames computed a block at a time in the frame loop (memory flat in the
+    # shot's length); the block's SkelAnimation samples are written with it
+    rt = retarget_stream(motion, target.skeleton, mapping=opt.mapping, start=opt.start, end=opt.end,
+                         fps=opt.fps, max_frames=opt.max_frames)
     rt, _ = place_on_floor(rt, target.skeleton, target.body, opt.floor)
-    world = rt.world
-    n_frames = world.shape[0]
+    world = _FrameWorlds(rt)
+    n_frames = rt.n_frames
     rep.frames, rep.fps = n_frames, float(rt.fps)
     rep.mapping = rt.report
     rep.timings["retarget"] = time.perf_counter() - t0
     info(f"retargeted {motion.path}: {n_frames} frames at {rt.fps:g} fps")
 
     body = target.body
-    skin_mats = skinning_matrices(target.skeleton.bind_world, world)  # (F, J, 4, 4)
+    def skin_mats(f):
+        return skinning_matrices(target.skeleton.bind_world, world(f))  # (J, 4, 4)
 
     # 2./3. dress -------------------------------------------------------------
     t0 = time.perf_counter()
     body_skinner = Skinner(body.points, body.joint_indices, body.joint_weights, target.skeleton.n_joints)
-    body0 = body_skinner(skin_mats[0])
+    body0 = body_skinner(skin_mats(0))
     # one plan, on the reference in its rest pose: regions and bound triangles
     # are best found with the limbs apart (a posed body, hands hanging beside
     # a skirt, would hand skirt parts to the arms); the posed dressing rebinds it
@@ -151,7 +156,7 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
         posed_plan = ref_plan.rebound(ref_body0, posed_pts)
         posed_ref = replace(reference, body=reference.body.copy_with_points(ref_body0),
                             skeleton=_posed_skeleton(reference.skeleton, ref_world0), items=posed_plan.items)
-        base_skeleton = _posed_skeleton(target.skeleton, world[0])
+        base_skeleton = _posed_skeleton(target.skeleton, world(0))
         posed_target = replace(target, body=target.body.copy_with_points(body0), skeleton=base_skeleton)
         dressed = dress_items(posed_ref, posed_target, k=opt.k, untangle=opt.untangle, prepared=posed_plan,
                               pose_align=opt.pose_align)
@@ -169,7 +174,7 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
     if opt.mode == "lbs":
         ji, jw = transfer_weights(body.points, body.faces, body.joint_indices, body.joint_weights,
                                   all_base, target.skeleton.n_joints)
-        evaluator = _LBSEvaluator(all_base, ji, jw, skin_mats)
+        evaluator = _LBSEvaluator(all_base, ji, jw, skin_mats, target.skeleton.n_joints)
         items_for_skin = [replace(m, joint_indices=ji[offsets[i]:offsets[i + 1]],
                                   joint_weights=jw[offsets[i]:offsets[i + 1]])
                           for i, m in enumerate(items)]
@@ -220,12 +225,17 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
     with ShotWriter(out_path, target, items, fps=rt.fps, n_frames=n_frames, clip_frames=clip_frames,
                     velocities=opt.velocities,
                     skinned_items=items_for_skin if (opt.mode == "lbs" and opt.write_skinned_items) else None) as w:
-        tw = time.perf_counter()
-        w.write_animation(rt.local)
-        t_write += time.perf_counter() - tw
+        def write_block(a, block):
+            nonlocal t_write
+            tw = time.perf_counter()
+            w.write_animation(rt.local(world=block), first_frame=a)
+            t_write += time.perf_counter() - tw
+        world.on_block = write_block
+        world.reset()
+        world(0)  # frame 0's block (and animation samples) even where frame 0 skips the skinning
         for f in progress(range(n_frames), total=n_frames, desc="animate", unit="frame"):
             ta = time.perf_counter()
-            body_f = body0 if f == 0 else body_skinner(skin_mats[f])
+            body_f = body0 if f == 0 else body_skinner(skin_mats(f))
             tb = time.perf_counter()
             pts = evaluator(f, body_f)
             if cloth is not None:
@@ -235,6 +245,7 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
                 pts[pushed_rows] = push_guard.apply(body_f, pts[pushed_rows])[0]
             elif opt.mode == "bind":
                 pts, _ = guard.apply(body_f, pts)
+            check_finite_points(pts, f, rt, motion.path)
             td = time.perf_counter()
             t_pen += td - tc
             if opt.measure_every and (f % opt.measure_every == 0 or f == n_frames - 1):
@@ -289,13 +300,47 @@ def _record(rep: AnimateReport, frame: int, rows: list) -> None:
             series[k].append(row[k])
 
 
+def check_finite_points(points: np.ndarray, frame: int, rt, path) -> None:
+    """Raise :class:`NonFiniteError` when the (M, 3) item points of output
+    ``frame`` hold NaN/inf (one reduction per frame)."""
+    if np.isfinite(points.sum()):
+        return
+    bad = int(np.flatnonzero(~np.isfinite(points).all(axis=1))[0])
+    raise NonFiniteError(path, f"non-finite item point {bad} at output frame {frame} "
+                               f"(clip frame {float(rt.source_frames[frame]):g})")
+
+
+class _FrameWorlds:
+    """``(f) -> (J, 4, 4)`` world joint transforms of output frame ``f`` of
+    a :class:`retarget.RetargetStream`, computed a block of frames at a time
+    (frames asked in increasing order cost one block each);
+    ``on_block(first_frame, block)`` is called for every block made."""
+
+    def __init__(self, stream, on_block=None):
+        self.stream = stream
+        self.on_block = on_block
+        self.reset()
+
+    def reset(self):
+        self.block = np.empty((0,))
+        self.first = 0
+
+    def __call__(self, f: int) -> np.ndarray:
+        if not self.first <= f < self.first + len(self.block):
+            self.block = self.stream.world(f, f + BLOCK)
+            self.first = f
+            if self.on_block is not None:
+                self.on_block(f, self.block)
+        return self.block[f - self.first]
+
+
 class _LBSEvaluator:
-    def __init__(self, points, ji, jw, skin_mats):
-        self.skinner = Skinner(points, ji, jw, skin_mats.shape[-3])
+    def __init__(self, points, ji, jw, skin_mats, n_joints):
+        self.skinner = Skinner(points, ji, jw, n_joints)
         self.mats = skin_mats
 
     def __call__(self, f, body_f):
-        return self.skinner(self.mats[f])
+        return self.skinner(self.mats(f))
 
 
 def dress_items(reference: Character, target: Character, k: int = 5, pose_align: bool = True, **plan_kw):

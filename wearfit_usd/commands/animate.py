@@ -2,8 +2,10 @@
 from __future__ import annotations
 
 import argparse
-import json
-from pathlib import Path
+
+from ..errors import InputError
+from .args import (MAX_FRAMES, bounded_float, bounded_int, check_distinct, check_inputs, check_output, fps_arg,
+                   write_report)
 
 
 def register(sub, common):
@@ -17,11 +19,14 @@ def register(sub, common):
     p.add_argument("target", help="USD stage with the rigged target body")
     p.add_argument("clip", help="BVH motion clip")
     p.add_argument("-o", "--output", required=True, help="output USD shot (.usd/.usda/.usdc)")
-    p.add_argument("--k", type=int, default=5, help="triangles each item vertex is bound to (default 5)")
+    p.add_argument("--k", type=bounded_int(1, 64), default=5, help="triangles each item vertex is bound to (default 5)")
     p.add_argument("--start", type=int, default=0,
                    help="first clip frame (CMU frame 0 is a converter T-pose: use --start 1)")
     p.add_argument("--end", type=int, default=None, help="last clip frame (exclusive)")
-    p.add_argument("--fps", default="30", help="output frame rate, or 'native' for the clip's (default 30)")
+    p.add_argument("--fps", type=fps_arg, default=30.0,
+                   help="output frame rate, or 'native' for the clip's (default 30)")
+    p.add_argument("--max-frames", type=bounded_int(1), default=MAX_FRAMES,
+                   help=f"refuse shots of more output frames than this (default {MAX_FRAMES})")
     p.add_argument("--map", dest="mapping", default=None,
                    help="JSON joint map {target_joint: clip_joint} overriding the automatic mapping")
     p.add_argument("--floor", choices=["auto", "keep"], default="auto",
@@ -31,7 +36,8 @@ def register(sub, common):
     p.add_argument("--no-pose", action="store_true",
                    help="dress with the reference body fitted by similarity alignment only (no pairing of the "
                         "reference's and the target's skeletons); the clip must still pair with the target")
-    p.add_argument("--bvh-scale", type=float, default=None, help="metres per BVH unit (default: detected)")
+    p.add_argument("--bvh-scale", type=bounded_float(0.0, 1e3), default=None,
+                   help="metres per BVH unit (default: detected)")
     p.add_argument("--mode", choices=["bind", "lbs"], default="bind",
                    help="bind: K-triangle binding per frame (default); lbs: skin weights copied to the items")
     p.add_argument("--dress-pose", choices=["first", "bind"], default="first",
@@ -48,7 +54,7 @@ def register(sub, common):
     p.add_argument("--write-skinned-items", action="store_true",
                    help="with --mode lbs: also write the items as skinned meshes (for engines without point caches)")
     p.add_argument("--velocities", action="store_true", help="author point velocities (units per second)")
-    p.add_argument("--clip-frames", type=int, default=None,
+    p.add_argument("--clip-frames", type=bounded_int(1), default=None,
                    help="write item samples as USD value clips of N frames (default: automatic for long shots)")
     p.add_argument("--report", default=None,
                    help="write a JSON report here (timings, and per item and measured frame the motion "
@@ -70,19 +76,23 @@ def run(args) -> int:
     from ..animate.measures import MotionLimitError, MotionLimits, describe_worst
     from ..animate.try_on import AnimateOptions, animate
     from ..io.bvh import read_bvh
-    from ..errors import InputError
     from ..progress import info
     from ..io.usd import read_character
-    fps = None if str(args.fps).lower() == "native" else float(args.fps)
-    if fps is not None and fps <= 0:
-        raise InputError(None, f"--fps must be positive or 'native', got {args.fps}")
-    mapping = None
-    if args.mapping:
-        from ..motion.joint_maps import load_user_map
-        mapping = load_user_map(args.mapping)
+    fps = args.fps
+    check_inputs(args.reference, args.target, args.clip, args.mapping)
+    inputs = (args.reference, args.target, args.clip, args.mapping)
+    check_output(args.output, inputs)
+    if args.report:
+        check_output(args.report, inputs, suffixes=(), what="--report")
+        check_distinct({"-o": args.output, "--report": args.report})
     reference = read_character(args.reference)
     target = read_character(args.target)
     motion = read_bvh(args.clip, scale=args.bvh_scale)
+    mapping = None
+    if args.mapping:
+        from ..motion.joint_maps import load_user_map
+        mapping = load_user_map(args.mapping, source_names=motion.joint_names,
+                                target_names=target.skeleton.joint_names if target.skeleton else None)
     every = args.measure_every
     if every is None:
         every = 1 if (args.report or args.strict) else 0
@@ -94,7 +104,8 @@ def run(args) -> int:
                           mapping=mapping, clip_frames=args.clip_frames, velocities=args.velocities,
                           write_skinned_items=args.write_skinned_items, dress_pose=args.dress_pose,
                           untangle=args.untangle, measure_every=every, floor=args.floor,
-                          pose_align=not args.no_pose, cloth=args.cloth)
+                          pose_align=not args.no_pose, cloth=args.cloth,
+                          max_frames=args.max_frames)
     rep = animate(reference, target, motion, args.output, opts)
     t = rep.timings
     info(f"wrote {args.output}: {rep.frames} frames at {rep.fps:g} fps, {len(reference.items)} items; "
@@ -104,7 +115,7 @@ def run(args) -> int:
         info(f"cloth: {rep.cloth_vertices} loose item vertices simulated, "
              f"{1000 * t['cloth_total'] / max(rep.frames - 1, 1):.2f} ms/frame")
     if args.report:
-        Path(args.report).write_text(json.dumps(rep.as_dict(), indent=2, default=float))
+        write_report(args.report, rep.as_dict())
     limits = MotionLimits()
     if rep.motion_worst:
         info(f"worst measured frame per item ({len(rep.measured_frames)} frames measured; "

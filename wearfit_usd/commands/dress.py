@@ -4,6 +4,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..errors import InputError
+from .args import K_MAX, bounded_int, check_distinct, check_inputs, check_output, write_report
 
 
 def register(sub, common):
@@ -16,7 +17,8 @@ def register(sub, common):
     p.add_argument("reference", help="USD stage with the rigged reference body and its items")
     p.add_argument("target", help="USD stage with the rigged target body")
     p.add_argument("-o", "--output", required=True, help="output USD file (.usd/.usda/.usdc)")
-    p.add_argument("--k", type=int, default=5, help="body triangles per item vertex (default 5)")
+    p.add_argument("--k", type=bounded_int(1, K_MAX), default=5,
+                   help="body triangles per item vertex (default 5)")
     p.add_argument("--rigid", default="auto",
                    help="items moved by a best-fit similarity transform instead of free deformation: "
                         "'auto' (small stiff parts: shoes, hat, glasses, watch...), 'none', or a "
@@ -47,13 +49,11 @@ def run(args) -> int:
     from ..io.usd import read_character, write_character
 
     ref_path, tgt_path, out = Path(args.reference), Path(args.target), Path(args.output)
-    for pth in (ref_path, tgt_path):
-        if not pth.exists():
-            raise InputError(pth, "file not found")
-    if out.suffix.lower() not in (".usd", ".usda", ".usdc"):
-        raise InputError(out, "output must end in .usd, .usda or .usdc")
-    if args.k < 1:
-        raise InputError(None, f"--k must be >= 1 (got {args.k})")
+    check_inputs(ref_path, tgt_path)
+    check_output(out, (ref_path, tgt_path))
+    if args.report:
+        check_output(args.report, (ref_path, tgt_path), suffixes=(), what="--report")
+        check_distinct({"-o": out, "--report": args.report})
     ref = read_character(ref_path)
     target = read_character(tgt_path)
     if not ref.items:
@@ -75,12 +75,10 @@ def run(args) -> int:
     write_character(out, target, items=res.items)
     t = res.timings
     if args.report:
-        import json
         from ..dress.metrics import dress_report
         rows = dress_report(ref, target, res)
-        Path(args.report).write_text(json.dumps({"reference": str(ref_path), "target": str(tgt_path),
-                                                 "output": str(out), "items": rows, "timings_s": t},
-                                                indent=2, default=float))
+        write_report(args.report, {"reference": str(ref_path), "target": str(tgt_path),
+                                   "output": str(out), "items": rows, "timings_s": t})
         for r in rows:
             info(f"  {r['item']:<24} new penetrations {r['new_pen_pct']:.2f} %, clearance change "
                  f"median {r['clear_med_mm']:.2f} mm, p95 {r['clear_p95_mm']:.2f} mm, flipped "

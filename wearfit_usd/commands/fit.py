@@ -2,10 +2,7 @@
 (its topology, rig and skin weights) deformed onto the target body."""
 from __future__ import annotations
 
-import json
-from pathlib import Path
-
-from ..errors import InputError
+from .args import check_distinct, check_inputs, check_output, write_report
 
 
 def register(sub, common):
@@ -56,12 +53,11 @@ def run(args) -> int:
     from ..progress import info, warn
     from ..io.usd import read_character, write_character
 
-    for f in (args.reference, args.target):
-        if not Path(f).exists():
-            raise InputError(f, "file not found")
-    out = Path(args.output)
-    if out.suffix.lower() not in (".usd", ".usda", ".usdc"):
-        raise InputError(out, "output must end in .usd, .usda or .usdc")
+    check_inputs(args.reference, args.target)
+    out = check_output(args.output, (args.reference, args.target))
+    if args.report:
+        check_output(args.report, (args.reference, args.target), suffixes=(), what="--report")
+        check_distinct({"-o": out, "--report": args.report})
     ref = read_character(args.reference)
     target = read_character(args.target, require_skeleton=False)
     opts = {"pose_align": not args.no_pose,
@@ -89,7 +85,6 @@ def run(args) -> int:
              f"{d['target_to_fit_mean_mm']:.2f} mm p99 {d['target_to_fit_p99_mm']:.2f} mm, "
              f"{d['flipped_triangles']} flipped triangles")
     if args.report:
-        Path(args.report).write_text(json.dumps(
-            {"diagnostics": d, "warnings": result.warnings, "same_topology": result.same_topology},
-            indent=2, default=float))
+        write_report(args.report, {"diagnostics": d, "warnings": result.warnings,
+                                   "same_topology": result.same_topology})
     return 0

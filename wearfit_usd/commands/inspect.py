@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
+from .args import bounded_float
 
 
 def register(sub, common):
@@ -18,7 +19,7 @@ def register(sub, common):
     p.add_argument("file", help="a .usd/.usda/.usdc/.usdz stage or a .bvh clip")
     p.add_argument("--json", action="store_true", help="print machine-readable JSON instead of text")
     p.add_argument("--joints", action="store_true", help="list every joint")
-    p.add_argument("--bvh-scale", type=float, default=None,
+    p.add_argument("--bvh-scale", type=bounded_float(0.0, 1e3), default=None,
                    help="BVH: metres per file unit (default: detected)")
     p.add_argument("--map", dest="map_other", metavar="OTHER", default=None,
                    help="also print how FILE's joints pair with OTHER's (a USD stage or BVH clip): "

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 from ..errors import InputError
+from .args import FPS_MAX, bounded_float
 
 
 def register(sub, common):
@@ -33,7 +34,7 @@ def register(sub, common):
                    help="colour items by clearance to the body (fit map with legend)")
     p.add_argument("--heatmap-against", metavar="REFERENCE.usd", default=None,
                    help="colour items by change of clearance versus the same items in REFERENCE")
-    p.add_argument("--fps", type=float, default=None,
+    p.add_argument("--fps", type=bounded_float(0.0, FPS_MAX), default=None,
                    help="GIF/MP4 frame rate (default: the stage's time codes per second; "
                         "turntables 12)")
     p.add_argument("--antialias", action="store_true",

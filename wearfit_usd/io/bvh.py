@@ -51,6 +51,12 @@ _UNITS = {  # name -> metres per unit, for the height heuristic
 _AXES = "XYZ"
 _ROT_CHANNELS = {"Xrotation": 0, "Yrotation": 1, "Zrotation": 2}
 _POS_CHANNELS = {"Xposition": 0, "Yposition": 1, "Zposition": 2}
+#: input bounds: a clip past them is refused with the file line (values beyond
+#: them only overflow or lose all precision in the kinematics)
+MAX_JOINTS = 10_000
+MAX_LENGTH_M = 1e4          # |offset| and |position channel| in metres
+MAX_ANGLE_DEG = 1e6         # |rotation channel| in degrees
+FRAME_TIME_RANGE = (1e-6, 1e6)  # seconds
 
 
 # --------------------------------------------------------------------------
@@ -320,7 +326,8 @@ def _parse_hierarchy(path, tk: _Tokens):
     orders: list[str] = []
     end_sites: list[tuple[int, np.ndarray]] = []
 
-    def parse_joint(parent: int, kw_line: int):
+    def joint_header(parent: int) -> int:
+        """Name, '{', OFFSET and CHANNELS of a ROOT/JOINT; returns its index."""
         tok, ln = tk.next("joint name")
         if tok in ("{", "}"):
             raise BVHError(path, "joint without a name", line=ln)
@@ -328,13 +335,16 @@ def _parse_hierarchy(path, tk: _Tokens):
         while tk.peek()[0] not in (None, "{") and tk.peek()[1] == ln:
             name_parts.append(tk.next("name")[0])
         name = " ".join(name_parts)
-        if name in names:
+        if name in seen:
             raise BVHError(path, f"duplicate joint name {name!r}", line=ln)
+        if len(names) >= MAX_JOINTS:
+            raise BVHError(path, f"more than {MAX_JOINTS} joints", line=ln)
         tk.expect("{")
         j = len(names)
         names.append(name)
+        seen.add(name)
         parents.append(parent)
-        tk.expect("OFFSET")
+        offset_lines.append(tk.expect("OFFSET"))
         offsets.append([tk.number("OFFSET value") for _ in range(3)])
         chans: list[str] = []
         tok, ln = tk.peek()
@@ -365,28 +375,38 @@ def _parse_hierarchy(path, tk: _Tokens):
         else:
             orders.append("")
         channels.append(chans)
-        while True:
+        return j
+
+    def parse_joint(root_line: int) -> None:
+        """A ROOT and its whole subtree, with an explicit stack (no recursion
+        per level: any depth parses)."""
+        stack = [joint_header(-1)]
+        while stack:
+            j = stack[-1]
             tok, ln = tk.next("JOINT, End Site or '}'")
             if tok == "}":
-                return
-            if tok == "JOINT":
-                parse_joint(j, ln)
+                stack.pop()
+            elif tok == "JOINT":
+                stack.append(joint_header(j))
             elif tok == "End":
                 site, sln = tk.next("Site")
                 if site.lower() != "site":
                     raise BVHError(path, f"expected 'End Site', found 'End {site}'", line=sln)
                 tk.expect("{")
-                tk.expect("OFFSET")
+                end_lines.append(tk.expect("OFFSET"))
                 off = np.array([tk.number("End Site OFFSET value") for _ in range(3)])
                 tk.expect("}")
                 end_sites.append((j, off))
             elif tok == "ROOT" or tok == "MOTION":
-                raise BVHError(path, f"found {tok} inside joint {name} (unbalanced braces: "
+                raise BVHError(path, f"found {tok} inside joint {names[j]} (unbalanced braces: "
                                      "missing '}')", line=ln)
             else:
-                raise BVHError(path, f"joint {name}: unexpected {tok!r} (expected JOINT, "
+                raise BVHError(path, f"joint {names[j]}: unexpected {tok!r} (expected JOINT, "
                                      "End Site or '}')", line=ln)
 
+    seen: set[str] = set()
+    offset_lines: list[int] = []
+    end_lines: list[int] = []
     tok, ln = tk.next("HIERARCHY")
     if tok != "HIERARCHY":
         raise BVHError(path, f"not a BVH file: expected HIERARCHY, found {tok!r}", line=ln)
@@ -396,14 +416,14 @@ def _parse_hierarchy(path, tk: _Tokens):
             break
         tk.next("ROOT")
         if tok == "ROOT":
-            parse_joint(-1, ln)
+            parse_joint(ln)
         elif tok == "}":
             raise BVHError(path, "unbalanced braces: '}' without an open joint", line=ln)
         else:
             raise BVHError(path, f"expected ROOT, found {tok!r}", line=ln)
     if not names:
         raise BVHError(path, "HIERARCHY holds no ROOT joint", line=tk.last_line)
-    return names, parents, offsets, channels, orders, end_sites
+    return names, parents, offsets, channels, orders, end_sites, offset_lines, end_lines
 
 
 def _detect_up(names, parents, offsets_file) -> str:
@@ -425,10 +445,40 @@ def _detect_up(names, parents, offsets_file) -> str:
 def _detect_scale(height_units: float, dialect: str) -> tuple[float, str]:
     if dialect.startswith("cmu"):
         return CMU_UNIT_M, "cmu (1 unit = 0.056444 m)"
-    if height_units <= 0:
+    if not 1e-9 < height_units < 1e12:  # flat (or absurd) rest skeleton: no unit fits
         return 1.0, "m (assumed)"
     best = min(_UNITS, key=lambda u: abs(math.log(height_units * _UNITS[u] / 1.7)))
     return _UNITS[best], best
+
+
+def _check_ranges(path, names, channels, off_file, rest_pos, end_sites, scale, values, row_lines,
+                  offset_lines, end_lines) -> None:
+    """Refuse offsets, rest positions and position channels beyond
+    :data:`MAX_LENGTH_M` metres and rotations beyond :data:`MAX_ANGLE_DEG`
+    degrees, naming the joint and the line (frame for motion values)."""
+    big = ~(np.abs(off_file).max(axis=1) * scale <= MAX_LENGTH_M)
+    big |= ~(np.abs(rest_pos).max(axis=1) * scale <= MAX_LENGTH_M)
+    if big.any():
+        j = int(np.argmax(big))
+        raise BVHError(path, f"joint {names[j]}: OFFSET places it more than {MAX_LENGTH_M:g} m "
+                             "from the root (extreme value)", line=offset_lines[j])
+    for k, (j, o) in enumerate(end_sites):
+        if not np.abs(o).max() * scale <= MAX_LENGTH_M:
+            raise BVHError(path, f"joint {names[j]}: End Site OFFSET beyond {MAX_LENGTH_M:g} m "
+                                 "(extreme value)", line=end_lines[k])
+    if values.size == 0:
+        return
+    col_joint = np.repeat(np.arange(len(channels)), [len(c) for c in channels])
+    is_rot = np.array([c in _ROT_CHANNELS for ch in channels for c in ch], dtype=bool)
+    limit = np.where(is_rot, MAX_ANGLE_DEG, MAX_LENGTH_M / scale)
+    over = np.abs(values) > limit
+    if over.any():
+        f, c = (int(v) for v in np.argwhere(over)[0])
+        j = int(col_joint[c])
+        chan = channels[j][c - int(np.flatnonzero(col_joint == j)[0])]
+        unit = f"{MAX_ANGLE_DEG:g} degrees" if is_rot[c] else f"{MAX_LENGTH_M:g} m"
+        raise BVHError(path, f"frame {f}, joint {names[j]}: {chan} value {values[f, c]:g} is beyond "
+                             f"{unit} (extreme value)", line=row_lines[f])
 
 
 def read_bvh(path, scale: float | None = None) -> BVHMotion:
@@ -463,7 +513,8 @@ def read_bvh(path, scale: float | None = None) -> BVHMotion:
     if lines[0].startswith("\ufeff"):
         lines[0] = lines[0][1:]
     tk = _Tokens(path, lines, 0, motion_line)
-    names, parents, offsets, channels, orders, end_sites = _parse_hierarchy(path, tk)
+    names, parents, offsets, channels, orders, end_sites, offset_lines, end_lines = \
+        _parse_hierarchy(path, tk)
 
     # ---- MOTION header
     def header(idx, key):
@@ -492,6 +543,9 @@ def read_bvh(path, scale: float | None = None) -> BVHMotion:
         raise BVHError(path, f"frame time {tv!r} is not a number", line=tl + 1) from None
     if not (frame_time > 0 and math.isfinite(frame_time)):
         raise BVHError(path, f"frame time must be > 0, got {tv}", line=tl + 1)
+    lo, hi = FRAME_TIME_RANGE
+    if not lo <= frame_time <= hi:
+        raise BVHError(path, f"frame time {tv} s is outside [{lo:g}, {hi:g}] s", line=tl + 1)
 
     # ---- motion rows
     n_ch = sum(len(c) for c in channels)
@@ -529,15 +583,16 @@ def read_bvh(path, scale: float | None = None) -> BVHMotion:
 
     # ---- units, axes
     off_file = np.array(offsets, dtype=np.float64).reshape(-1, 3)
-    dialect = _guess_dialect(names)
-    up = _detect_up(names, parents, off_file)
-    c3 = Z_UP_TO_Y_UP[:3, :3].copy() if up == "Z" else np.eye(3)
-    pos = np.zeros_like(off_file)
-    for j, p in enumerate(parents):
-        pos[j] = off_file[j] + (pos[p] if p >= 0 else 0.0)
-    ends_file = np.array([pos[j] + o for j, o in end_sites]).reshape(-1, 3)
-    allp = np.concatenate([pos, ends_file]) @ c3
-    height_units = float(np.ptp(allp[:, 1])) if len(allp) else 0.0
+    with np.errstate(over="ignore", invalid="ignore"):  # extreme offsets: refused below
+        dialect = _guess_dialect(names)
+        up = _detect_up(names, parents, off_file)
+        c3 = Z_UP_TO_Y_UP[:3, :3].copy() if up == "Z" else np.eye(3)
+        pos = np.zeros_like(off_file)
+        for j, p in enumerate(parents):
+            pos[j] = off_file[j] + (pos[p] if p >= 0 else 0.0)
+        ends_file = np.array([pos[j] + o for j, o in end_sites]).reshape(-1, 3)
+        allp = np.concatenate([pos, ends_file]) @ c3
+        height_units = float(np.ptp(allp[:, 1])) if len(allp) else 0.0
     if scale is None and not dialect.startswith("cmu"):
         scale, units = choose_unit(standing_height(parents, allp))
     elif scale is None:
@@ -547,6 +602,8 @@ def read_bvh(path, scale: float | None = None) -> BVHMotion:
         if not (scale > 0 and math.isfinite(scale)):
             raise BVHError(path, f"scale must be > 0 metres per unit, got {scale}")
         units = f"{scale:g} m/unit (given)"
+    _check_ranges(path, names, channels, off_file, pos, end_sites, scale, values, row_lines,
+                  offset_lines, end_lines)
     starts = np.concatenate([[0], np.cumsum([len(c) for c in channels])[:-1]]).astype(np.int64)
     return BVHMotion(
         path=str(path), joint_names=names, parents=np.array(parents, dtype=np.int64),

@@ -81,9 +81,10 @@ def choose_unit(height_units: float) -> tuple[float, str]:
 
     The unit putting the height in :data:`HUMAN_HEIGHT_M`, closest to 1.7 m
     (log scale); when none does, the closest overall; ``(1.0, "m
-    (assumed)")`` for a zero height.
+    (assumed)")`` for a zero, sub-micrometre (a flat skeleton: no unit can
+    make it a person) or non-finite height.
     """
-    if not height_units > 0 or not math.isfinite(height_units):
+    if not height_units > 1e-6 or not math.isfinite(height_units):
         return 1.0, "m (assumed)"
     lo, hi = HUMAN_HEIGHT_M
 

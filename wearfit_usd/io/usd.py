@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import GeometryError, InputError, USDInputError
+from ..errors import GeometryError, InputError, USDInputError, WriteError
 from ..model import Character, Mesh, Primvar, Skeleton
 from ..progress import warn
 from ..transforms import invert, stage_to_internal, transform_points
@@ -36,6 +36,16 @@ def _pxr():
 
 def _np(value, dtype=np.float64) -> np.ndarray:
     return np.array(value, dtype=dtype)
+
+
+def _get(path, attr, time=None):
+    """``attr.Get(time)``, None when unauthored; :class:`USDInputError` for
+    a value USD parsed but could not type (e.g. an out-of-range number)."""
+    v = attr.Get() if time is None else attr.Get(time)
+    if v is not None and type(v).__name__ == "UnregisteredValue":
+        where = attr.GetAttr() if hasattr(attr, "GetAttr") else attr  # a primvar or an attribute
+        raise USDInputError(path, f"{where.GetPath()}: malformed value (out of range or wrong type)")
+    return v
 
 
 # --------------------------------------------------------------------------
@@ -96,15 +106,20 @@ def _read_mesh(stage, prim, to_internal, path, time=None) -> Mesh:
     t = Usd.TimeCode.EarliestTime() if time is None else Usd.TimeCode(time)
     mesh = UsdGeom.Mesh(prim)
     name = prim.GetName()
-    pts_v = mesh.GetPointsAttr().Get(t)
-    counts_v = mesh.GetFaceVertexCountsAttr().Get(t)
-    idx_v = mesh.GetFaceVertexIndicesAttr().Get(t)
+    pts_v = _get(path, mesh.GetPointsAttr(), t)
+    counts_v = _get(path, mesh.GetFaceVertexCountsAttr(), t)
+    idx_v = _get(path, mesh.GetFaceVertexIndicesAttr(), t)
     if pts_v is None or counts_v is None or idx_v is None or len(pts_v) == 0:
         raise GeometryError(path, f"mesh {prim.GetPath()} is empty (no points or faces)")
     pts = _np(pts_v)
     _check_points(path, prim.GetPath(), pts)
     counts = _np(counts_v, np.int64)
     idx = _np(idx_v, np.int64)
+    if len(counts) == 0 or len(idx) == 0:
+        raise GeometryError(path, f"mesh {prim.GetPath()} has no faces (empty faceVertexCounts)")
+    if counts.min() < 3:
+        raise GeometryError(path, f"mesh {prim.GetPath()}: faceVertexCounts holds {int(counts.min())} "
+                                  f"at face {int(np.argmin(counts))} (every face needs >= 3 vertices)")
     if counts.sum() != len(idx):
         raise GeometryError(path, f"mesh {prim.GetPath()}: faceVertexCounts sum {counts.sum()} "
                                   f"!= {len(idx)} faceVertexIndices")
@@ -114,6 +129,8 @@ def _read_mesh(stage, prim, to_internal, path, time=None) -> Mesh:
     faces, t2p = triangulate(counts, idx, left)
     if len(faces) == 0:
         raise GeometryError(path, f"mesh {prim.GetPath()} has no polygons")
+    if not (np.ptp(pts, axis=0) > 0).any():
+        raise GeometryError(path, f"mesh {prim.GetPath()}: all {len(pts)} points are equal")
     xf = _np(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(t))
     world = transform_points(pts, xf @ to_internal)
     primvars = []
@@ -158,12 +175,13 @@ def _read_skeleton(skel_query, skel_prim, to_internal, path) -> Skeleton:
     if not ok:
         raise USDInputError(path, f"skeleton {skel_prim.GetPath()}: invalid joint topology: {why}")
     parents = np.array(topo.GetParentIndices(), dtype=np.int64)
-    bind = skel.GetBindTransformsAttr().Get()
+    bind = _get(path, skel.GetBindTransformsAttr())
     if bind is None or len(bind) != len(joints):
         raise USDInputError(path, f"skeleton {skel_prim.GetPath()}: bindTransforms has "
                                   f"{0 if bind is None else len(bind)} entries for {len(joints)} joints")
     bind = _np(bind).reshape(-1, 4, 4)
-    rest = skel.GetRestTransformsAttr().Get()
+    _check_transforms(path, skel_prim, "bindTransforms", joints, bind)
+    rest = _get(path, skel.GetRestTransformsAttr())
     if rest is None or len(rest) != len(joints):
         # rest defaults to the bind pose, expressed locally
         inv = invert(bind)
@@ -171,12 +189,29 @@ def _read_skeleton(skel_query, skel_prim, to_internal, path) -> Skeleton:
                          for j in range(len(joints))])
     else:
         rest = _np(rest).reshape(-1, 4, 4)
+        _check_transforms(path, skel_prim, "restTransforms", joints, rest)
     skel_xf = _np(UsdGeom.Xformable(skel_prim).ComputeLocalToWorldTransform(Usd.TimeCode.Default()))
     k = skel_xf @ to_internal
+    _check_transforms(path, skel_prim, "transform", ["(the skeleton prim)"], k[None])
     names = [j.split("/")[-1] for j in joints]
     return Skeleton(joint_names=names, joint_paths=joints, parents=parents,
                     bind_world=bind @ k, rest_local=rest, skel_to_world=k,
                     path=str(skel_prim.GetPath()))
+
+
+def _check_transforms(path, prim, what: str, joints, mats: np.ndarray) -> None:
+    """Refuse NaN/inf, singular (zero-scale) and not affine (J, 4, 4) joint
+    transforms, naming the first bad joint."""
+    with np.errstate(all="ignore"):
+        a = mats[:, :3, :3]
+        finite = np.isfinite(mats).all(axis=(1, 2))
+        det = np.where(finite, np.linalg.det(np.where(finite[:, None, None], a, 0.0)), 0.0)
+        scale = np.abs(np.where(finite[:, None, None], a, 0.0)).max(axis=(1, 2))
+        ok = finite & (np.abs(det) > 1e-12 * np.maximum(scale, 1e-300) ** 3) & (scale > 0)
+    if not ok.all():
+        j = int(np.argmin(ok))
+        why = "NaN/inf" if not finite[j] else "a singular (zero-scale or flat) matrix"
+        raise USDInputError(path, f"skeleton {prim.GetPath()}: {what} of joint {joints[j]} is {why}")
 
 
 def _read_influences(skinning_query, skel: Skeleton, n_points, path, prim_path):
@@ -187,8 +222,8 @@ def _read_influences(skinning_query, skel: Skeleton, n_points, path, prim_path):
                                   "(primvars:skel:jointIndices/jointWeights)")
     ind_pv = skinning_query.GetJointIndicesPrimvar()
     w_pv = skinning_query.GetJointWeightsPrimvar()
-    ind = _np(ind_pv.Get(), np.int64)
-    w = _np(w_pv.Get())
+    ind = _np(_get(path, ind_pv), np.int64)
+    w = _np(_get(path, w_pv))
     k = skinning_query.GetNumInfluencesPerComponent()
     if len(ind) != len(w):
         raise USDInputError(path, f"{prim_path}: jointIndices has {len(ind)} values but "
@@ -242,6 +277,12 @@ def find_skinned_meshes(stage):
         for binding in cache.ComputeSkelBindings(UsdSkel.Root(root), pred):
             skel = binding.GetSkeleton()
             sq = cache.GetSkelQuery(skel)
+            if not sq:
+                joints = skel.GetJointsAttr().Get() or []
+                raise USDInputError(stage.GetRootLayer().identifier,
+                                    f"skeleton {skel.GetPrim().GetPath()}: invalid joint list "
+                                    f"({len(joints)} joints): every joint must come after its parent "
+                                    "and name an existing parent path")
             for target in binding.GetSkinningTargets():
                 prim = target.GetPrim()
                 if prim.IsA(UsdGeom.Mesh):
@@ -258,10 +299,52 @@ def read_character(path, body_path: str | None = None, item_paths: list[str] | N
         Mesh). With ``require_skeleton=False`` a stage without any skinned mesh
         is accepted: the largest mesh becomes the body and ``skeleton`` is None.
     """
+    try:
+        char = _read_character(path, body_path, item_paths, require_skeleton)
+    except InputError:
+        raise
+    except Exception as exc:
+        if not type(exc).__module__.startswith("pxr"):
+            raise
+        # pxr.Tf.ErrorException: a corrupt or truncated file (e.g. a crate
+        # file's LZ4 blocks) found while reading values
+        lines = [ln.strip() for ln in str(exc).strip().splitlines() if ln.strip()]
+        why = lines[-1].split(": '", 1)[-1].rstrip("'") if lines else type(exc).__name__
+        raise USDInputError(path, f"cannot read (corrupt or truncated file?): {why}") from None
+    b = char.body.points
+    ext = np.ptp(b, axis=0)
+    if len(b) < 4 or not ext.min() > 1e-3 * ext.max():
+        raise GeometryError(path, f"body {char.body.path}: {len(b)} points spanning "
+                                  f"{' x '.join(f'{e:.3g}' for e in ext)} m: flat or too small to be a body")
+    return char
+
+
+def stage_units(stage, path) -> tuple[str, float]:
+    """The stage's up axis and metres per unit, checked: a metersPerUnit
+    that is not a positive finite number is an error; a root layer that
+    authors neither (USD reads stage metadata from the root layer only, never
+    from sublayers) gets a warning saying what is assumed."""
+    _, _, _, UsdGeom, _, _ = _pxr()
+    up = str(UsdGeom.GetStageUpAxis(stage))
+    mpu = float(UsdGeom.GetStageMetersPerUnit(stage))
+    if not (np.isfinite(mpu) and mpu > 0):
+        raise USDInputError(path, f"metersPerUnit must be a positive number, got {mpu:g}")
+    if up not in ("Y", "Z"):
+        raise USDInputError(path, f"upAxis must be Y or Z, got {up!r}")
+    missing = [k for k in ("upAxis", "metersPerUnit") if not stage.HasAuthoredMetadata(k)]
+    if missing:
+        from ..progress import warn
+        subs = stage.GetRootLayer().subLayerPaths
+        note = " (its sublayers' stage metadata does not count in USD)" if len(subs) else ""
+        warn(f"{path}: the root layer sets no {' or '.join(missing)}{note}; assuming "
+             f"upAxis {up} and metersPerUnit {mpu:g}")
+    return up, mpu
+
+
+def _read_character(path, body_path, item_paths, require_skeleton) -> Character:
     _, _, Usd, UsdGeom, UsdSkel, _ = _pxr()
     stage = open_stage(path)
-    up = UsdGeom.GetStageUpAxis(stage)
-    mpu = UsdGeom.GetStageMetersPerUnit(stage)
+    up, mpu = stage_units(stage, path)
     to_int = stage_to_internal(up, mpu)
     meshes = [p for p in stage.Traverse() if p.IsA(UsdGeom.Mesh)]
     if not meshes:
@@ -342,7 +425,7 @@ def _read_skinned_mesh(stage, prim, skinning_query, skeleton: Skeleton, path) ->
     # meshes: bind shape = points @ geomBindTransform in skeleton space.
     from pxr import UsdGeom
     from pxr import Usd
-    pts = _np(UsdGeom.Mesh(prim).GetPointsAttr().Get(Usd.TimeCode.EarliestTime()))
+    pts = _np(_get(path, UsdGeom.Mesh(prim).GetPointsAttr(), Usd.TimeCode.EarliestTime()))
     gb = _np(skinning_query.GetGeomBindTransform())
     mesh.points = transform_points(pts, gb @ skeleton.skel_to_world)
     ind, w = _read_influences(skinning_query, skeleton, len(pts), path, prim.GetPath())
@@ -355,6 +438,19 @@ def _read_skinned_mesh(stage, prim, skinning_query, skeleton: Skeleton, path) ->
 
 # --------------------------------------------------------------------------
 # writing
+
+def save_layer(layer, dest) -> None:
+    """``layer.Save()``, raising :class:`WriteError` (naming ``dest``, the
+    file the user asked for) when USD cannot write it (disk full...)."""
+    try:
+        ok = layer.Save()
+    except Exception as exc:  # pxr.Tf.ErrorException
+        lines = [ln.strip() for ln in str(exc).strip().splitlines() if ln.strip()]
+        why = lines[0].split(": '", 1)[-1].rstrip("'") if lines else str(exc)
+        raise WriteError(dest, f"cannot write: {why}") from None
+    if not ok:
+        raise WriteError(dest, "cannot write (USD refused to save the layer)")
+
 
 def write_character(path, character: Character, items: list[Mesh] | None = None,
                     body: Mesh | None = None, up_axis: str | None = None,
@@ -387,5 +483,5 @@ def write_character(path, character: Character, items: list[Mesh] | None = None,
         stage.SetEndTimeCode(0)
         stage.SetTimeCodesPerSecond(character.time_codes_per_second)
         stage.SetFramesPerSecond(character.time_codes_per_second)
-        stage.GetRootLayer().Save()
+        save_layer(stage.GetRootLayer(), path)
     return Path(path)

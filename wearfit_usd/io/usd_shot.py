@@ -21,17 +21,32 @@ as soon as they are full, so memory stays bounded and crate writing fast
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from ..errors import OutputError
 from ..geometry.closest import VertexNormals
 from ..model import Character, Mesh
 from ..transforms import decompose, quat_from_matrix, transform_points
-from .usd_author import (StageLayout, author_body, author_mesh_topology, author_skeleton,
-                         author_static_item, prim_name, vt_extent, vt_points)
+from .usd import save_layer
+from .usd_author import (
+    StageLayout,
+    author_body,
+    author_mesh_topology,
+    author_skeleton,
+    author_static_item,
+    prim_name,
+    vt_extent,
+    vt_points,
+)
+
+#: the value-clip layers the writer makes in ``<shot>.clips/``; nothing else
+#: in that folder is ever replaced or deleted
+CLIP_NAME = re.compile(r"items\.\d{4,}\.usdc")
 
 
 class ShotWriter:
@@ -52,6 +67,19 @@ class ShotWriter:
                  clip_frames: int | None = None, velocities: bool = False,
                  skinned_items: list[Mesh] | None = None, up_axis: str | None = None,
                  meters_per_unit: float | None = None):
+        self._tmp = None
+        self._clip_dir_tmp = None
+        self.stage = None
+        self._clip_stage = None
+        try:
+            self._start(path, target, items, fps, n_frames, clip_frames, velocities, skinned_items,
+                        up_axis, meters_per_unit)
+        except BaseException:
+            self.abort()
+            raise
+
+    def _start(self, path, target, items, fps, n_frames, clip_frames, velocities, skinned_items,
+               up_axis, meters_per_unit):
         from pxr import Usd, UsdGeom, UsdSkel
         self.path = Path(path)
         self.fps = float(fps)
@@ -61,17 +89,24 @@ class ShotWriter:
         self.clip_frames = int(clip_frames) if clip_frames else None
         self.target = target
         self._written = np.zeros(self.n_frames, dtype=bool)
+        if self.clip_frames is not None and self.clip_frames < 1:
+            raise ValueError(f"clip_frames must be >= 1, got {clip_frames}")
+        self._clip_dir_final = self.path.parent / f"{self.path.stem}.clips"
+        if self.clip_frames and self._clip_dir_final.exists() and not self._clip_dir_final.is_dir():
+            raise OutputError(self._clip_dir_final, "exists and is not a folder: cannot write the "
+                                                    "shot's value clips there")
         self.path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=f".{self.path.stem}.", suffix=self.path.suffix or ".usdc",
                                    dir=str(self.path.parent))
         os.close(fd)
         os.unlink(tmp)
         self._tmp = tmp
-        self._clip_dir_final = self.path.parent / f"{self.path.stem}.clips"
-        self._clip_dir_tmp = None
         if self.clip_frames:
             self._clip_dir_tmp = Path(tempfile.mkdtemp(prefix=f".{self.path.stem}.clips.",
                                                        dir=str(self.path.parent)))
+            umask = os.umask(0)
+            os.umask(umask)
+            os.chmod(self._clip_dir_tmp, 0o777 & ~umask)  # mkdtemp makes it private
         self.stage = Usd.Stage.CreateNew(tmp)
         up = up_axis or target.up_axis
         mpu = meters_per_unit or target.meters_per_unit
@@ -117,35 +152,43 @@ class ShotWriter:
         self._clip_paths = []
 
     # ------------------------------------------------------------------
-    def write_animation(self, local: np.ndarray) -> None:
+    def write_animation(self, local: np.ndarray, first_frame: int | None = None) -> None:
         """Author the SkelAnimation from (F, J, 4, 4) joint transforms local to
         their parents, as :meth:`Skeleton.local_from_world` of the target
-        skeleton returns them (target skeleton space)."""
+        skeleton returns them (target skeleton space): every frame at once,
+        or with ``first_frame`` a block of frames from that time code on
+        (blocks may come in any order; together they must cover the shot)."""
         from pxr import UsdSkel, Vt
         skel = self.target.skeleton
         if skel is None:
             raise ValueError("target has no skeleton: cannot write a SkelAnimation")
         local = np.asarray(local, dtype=np.float64)
-        if local.shape[0] != self.n_frames:
-            raise ValueError(f"animation has {local.shape[0]} frames, shot has {self.n_frames}")
+        if first_frame is None:
+            if local.shape[0] != self.n_frames:
+                raise ValueError(f"animation has {local.shape[0]} frames, shot has {self.n_frames}")
+            first_frame = 0
+        elif not 0 <= first_frame <= self.n_frames - local.shape[0]:
+            raise ValueError(f"animation frames {first_frame}..{first_frame + local.shape[0] - 1} "
+                             f"outside the shot's {self.n_frames}")
         # re-express in the written skeleton's space (identity skeleton xform)
         world = skel.world_from_local(local)
         out_local = self._skel_out.local_from_world(world)
         t, r, s = decompose(out_local)
         q = quat_from_matrix(r)  # (F, J, 4) w,x,y,z
-        anim = UsdSkel.Animation.Define(self.stage, self.layout.anim_path)
-        anim.CreateJointsAttr(Vt.TokenArray(skel.joint_paths))
-        ta = anim.CreateTranslationsAttr()
-        ra = anim.CreateRotationsAttr()
-        sa = anim.CreateScalesAttr()
+        if getattr(self, "_anim_attrs", None) is None:
+            anim = UsdSkel.Animation.Define(self.stage, self.layout.anim_path)
+            anim.CreateJointsAttr(Vt.TokenArray(skel.joint_paths))
+            self._anim_attrs = (anim.CreateTranslationsAttr(), anim.CreateRotationsAttr(),
+                                anim.CreateScalesAttr())
+            binding = UsdSkel.BindingAPI.Apply(self.stage.GetPrimAtPath(self.layout.skel_path))
+            binding.CreateAnimationSourceRel().SetTargets([self.layout.anim_path])
+        ta, ra, sa = self._anim_attrs
         # Vt.QuatfArray.FromNumpy takes (imaginary i, j, k, real)
         qf = np.ascontiguousarray(q[..., [1, 2, 3, 0]].astype(np.float32))
-        for f in range(self.n_frames):
-            ta.Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(t[f], dtype=np.float32)), f)
-            ra.Set(Vt.QuatfArray.FromNumpy(qf[f]), f)
-            sa.Set(Vt.Vec3hArray.FromNumpy(np.ascontiguousarray(s[f], dtype=np.float16)), f)
-        binding = UsdSkel.BindingAPI.Apply(self.stage.GetPrimAtPath(self.layout.skel_path))
-        binding.CreateAnimationSourceRel().SetTargets([self.layout.anim_path])
+        for f in range(local.shape[0]):
+            ta.Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(t[f], dtype=np.float32)), first_frame + f)
+            ra.Set(Vt.QuatfArray.FromNumpy(qf[f]), first_frame + f)
+            sa.Set(Vt.Vec3hArray.FromNumpy(np.ascontiguousarray(s[f], dtype=np.float16)), first_frame + f)
 
     # ------------------------------------------------------------------
     def _target_layer_for(self, frame: int):
@@ -168,7 +211,7 @@ class ShotWriter:
 
     def _close_clip(self):
         if self._clip_stage is not None:
-            self._clip_stage.GetRootLayer().Save()
+            save_layer(self._clip_stage.GetRootLayer(), self._clip_dir_final / self._clip_paths[-1])
             self._clip_stage = None
 
     def write_frame(self, frame: int, item_points: list[np.ndarray]) -> None:
@@ -239,54 +282,90 @@ class ShotWriter:
 
     def close(self) -> Path:
         """Finish, save and move the shot into place; returns its path."""
-        from pxr import Sdf, Usd
+        from pxr import Sdf, Vt
         self._flush_velocities()
         self._close_clip()
         if not self._written.all():
             missing = np.flatnonzero(~self._written)
             raise ValueError(f"frames never written: {missing[:10].tolist()}")
+        layer = self.stage.GetRootLayer()
         if self.clip_frames:
+            # authored on the layer with no stage open on it: a stage would try
+            # to open the clips at their final place (not there yet) and warn
+            # "Unable to open clip layer" once per clip (FindOrOpen: a strong
+            # reference, the layer outlives the stage)
+            layer = Sdf.Layer.FindOrOpen(layer.identifier)
+            self.stage = None
+            self.layout.stage = None
+            self._attr_stage = None
+            self._attr_cache = []
             clip_rel = f"./{self._clip_dir_final.name}"
-            items_prim = self.stage.GetPrimAtPath(self.layout.items_path)
-            clips = Usd.ClipsAPI(items_prim)
             assets = [Sdf.AssetPath(f"{clip_rel}/{n}") for n in self._clip_paths]
-            clips.SetClipAssetPaths(assets)
-            clips.SetClipPrimPath(str(self.layout.items_path))
             active = [(float(k * self.clip_frames), float(k)) for k in range(len(assets))]
-            clips.SetClipActive(active)
             times = []
             for k in range(len(assets)):
                 a = k * self.clip_frames
                 b = min(self.n_frames - 1, (k + 1) * self.clip_frames - 1)
                 times += [(float(a), float(a)), (float(b), float(b))]
-            clips.SetClipTimes(times)
+            # the dictionary Usd.ClipsAPI's setters author
+            layer.GetPrimAtPath(self.layout.items_path).SetInfo("clips", {"default": {
+                "assetPaths": Sdf.AssetPathArray(assets), "primPath": str(self.layout.items_path),
+                "active": Vt.Vec2dArray(active), "times": Vt.Vec2dArray(times)}})
             # each item mesh's points have samples only in the clips: author
             # the topology/rest points in the shot layer as fallback.
-        self.stage.GetRootLayer().Save()
+        save_layer(layer, self.path)
         self.layout.stage = None
         if self.clip_frames:
-            if self._clip_dir_final.exists():
-                shutil.rmtree(self._clip_dir_final)
-            os.replace(self._clip_dir_tmp, self._clip_dir_final)
+            self._install_clips()
         os.replace(self._tmp, self.path)
+        self._tmp = None
         self.stage = None
         return self.path
 
+    def _install_clips(self) -> None:
+        """Move the new clip layers into ``<shot>.clips/``: a folder made by
+        the tool (holding only its ``items.NNNN.usdc`` layers) is replaced
+        whole; in any other folder only those layers are replaced (stale ones
+        from a longer earlier shot removed) and every other file is kept."""
+        final = self._clip_dir_final
+        if not final.exists():
+            os.replace(self._clip_dir_tmp, final)
+            self._clip_dir_tmp = None
+            return
+        new = set(self._clip_paths)
+        for p in final.iterdir():
+            if CLIP_NAME.fullmatch(p.name) and p.name not in new and p.is_file():
+                p.unlink()
+        for name in self._clip_paths:
+            os.replace(Path(self._clip_dir_tmp) / name, final / name)
+        shutil.rmtree(self._clip_dir_tmp, ignore_errors=True)
+        self._clip_dir_tmp = None
+
     def abort(self) -> None:
+        """Drop everything written so far (temporary shot file and clip folder)."""
         self.stage = None
         self._clip_stage = None
-        for p in (self._tmp,):
-            if p and os.path.exists(p):
-                os.unlink(p)
+        if getattr(self, "layout", None) is not None:
+            self.layout.stage = None
+        self._attr_stage = None
+        self._attr_cache = []
+        if self._tmp and os.path.exists(self._tmp):
+            os.unlink(self._tmp)
+        self._tmp = None
         if self._clip_dir_tmp and Path(self._clip_dir_tmp).exists():
             shutil.rmtree(self._clip_dir_tmp, ignore_errors=True)
+        self._clip_dir_tmp = None
 
     def __enter__(self):
         return self
 
     def __exit__(self, exc_type, exc, tb):
         if exc_type is None:
-            self.close()
+            try:
+                self.close()
+            except BaseException:
+                self.abort()
+                raise
         else:
             self.abort()
         return False

@@ -114,8 +114,10 @@ def floor_tilt(ground: np.ndarray, lows: np.ndarray, max_deg: float = MAX_TILT_D
 
 
 def place_on_floor(rt, skeleton, body, mode: str = "auto", samples: int = 60):
-    """A :class:`~wearfit_usd.motion.retarget.Retargeted` standing on the
-    body's rest floor (``mode="auto"``) or unchanged (``"keep"``).
+    """A :class:`~wearfit_usd.motion.retarget.Retargeted` (or a
+    :class:`~wearfit_usd.motion.retarget.RetargetStream`, corrected as its
+    frames are computed) standing on the body's rest floor
+    (``mode="auto"``) or unchanged (``"keep"``).
 
     auto: a tilted capture floor is levelled (each frame moved vertically by
     the fitted slope times the root's horizontal travel since frame 0, see
@@ -130,22 +132,34 @@ def place_on_floor(rt, skeleton, body, mode: str = "auto", samples: int = 60):
     """
     if mode not in FLOOR_MODES:
         raise ValueError(f"floor mode must be one of {FLOOR_MODES}, got {mode!r}")
-    if mode == "keep" or body is None or not body.is_skinned or rt.n_frames == 0:
+    n = rt.n_frames if hasattr(rt, "blocks") else np.asarray(rt.world).shape[0]
+    if mode == "keep" or body is None or not body.is_skinned or n == 0:
         return rt, 0.0
-    world = rt.world.copy()
-    n = world.shape[0]
     frames = np.unique(np.linspace(0, n - 1, min(samples, n)).astype(int))
     root = int(np.flatnonzero(np.asarray(skeleton.parents) < 0)[0])
     carrier = rt.report.get("root_joint")
     if carrier in skeleton.joint_names:
         root = skeleton.joint_names.index(carrier)
-    ground = world[:, root, 3][:, [0, 2]]
-    lows = lowest_points(body.points, body.joint_indices, body.joint_weights, skeleton.bind_world,
-                         world, frames)
-    slope = floor_tilt(ground[frames], lows)
+    if hasattr(rt, "blocks"):
+        # a RetargetStream: the sampled frames only; the correction is applied
+        # as its frames are computed (floor_dy, floor_slope)
+        sampled = np.stack([rt.world(f, f + 1)[0] for f in frames])
+    else:
+        sampled = np.asarray(rt.world)[frames]
+    ground = sampled[:, root, 3][:, [0, 2]]
+    lows = lowest_points(body.points, body.joint_indices, body.joint_weights, skeleton.bind_world, sampled)
+    slope = floor_tilt(ground, lows)
+    ground0 = ground[0].copy()  # frames[0] == 0
     if slope.any():
-        world[:, :, 3, 1] -= ((ground - ground[0]) @ slope)[:, None]
-    dy = floor_shift(body, skeleton, world, samples=samples)
+        sampled = sampled.copy()
+        sampled[:, :, 3, 1] -= ((ground - ground0) @ slope)[:, None]
+    dy = floor_shift(body, skeleton, sampled, samples=len(frames))
+    if hasattr(rt, "blocks"):
+        return replace(rt, floor_dy=float(dy), floor_slope=slope if slope.any() else None,
+                       floor_ground0=ground0), dy
+    world = np.asarray(rt.world).copy()
+    if slope.any():
+        world[:, :, 3, 1] -= ((world[:, root, 3][:, [0, 2]] - ground0) @ slope)[:, None]
     world[:, :, 3, 1] += dy
     report = dict(rt.report)
     report["floor_shift_m"] = dy

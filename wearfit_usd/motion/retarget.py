@@ -37,7 +37,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..io.bvh import BVHMotion
-from ..errors import InputError
+from ..errors import InputError, NonFiniteError, OutputError
+from ..resources import require_memory
 from .joint_maps import JointMapping, normalize, roles
 from .rig_match import RigMatch, leg_length, match_skeletons, require_match
 from ..model import Skeleton
@@ -99,13 +100,21 @@ def _depth(parents):
     return d
 
 
+def output_frame_count(n: int, src_fps: float, fps: float | None) -> int:
+    """Frames :func:`resample_clip` makes of ``n`` clip frames at ``src_fps``
+    resampled to ``fps`` (None or equal: ``n``), computed without allocating."""
+    if fps is None or abs(fps - src_fps) < 1e-9:
+        return int(n)
+    count = np.floor((n - 1) / src_fps * fps + 1e-9) + 1
+    return int(count) if np.isfinite(count) else np.iinfo(np.int64).max
+
+
 def resample_clip(grot: np.ndarray, root_pos: np.ndarray, src_fps: float, fps: float):
     """Resample clip world rotations (F, J, 3, 3) by quaternion slerp and root
     positions (F, 3) linearly to ``fps``. Returns (rot, pos, frames) with
     frames (F',) the fractional source frame of each output frame."""
     n = grot.shape[0]
-    duration = (n - 1) / src_fps
-    count = int(np.floor(duration * fps + 1e-9)) + 1
+    count = output_frame_count(n, src_fps, fps)
     frames = np.arange(count) * (src_fps / fps)
     frames = np.minimum(frames, n - 1)
     i0 = np.floor(frames).astype(int)
@@ -119,7 +128,7 @@ def resample_clip(grot: np.ndarray, root_pos: np.ndarray, src_fps: float, fps: f
 
 def retarget(motion: BVHMotion, skeleton: Skeleton, mapping: JointMapping | dict | None = None,
              start: int = 0, end: int | None = None, fps: float | None = None,
-             mode: str = "direction", rest="zero") -> Retargeted:
+             mode: str = "direction", rest="zero", max_frames: int | None = None) -> Retargeted:
     """Retarget ``motion`` onto ``skeleton``.
 
     mapping: a :class:`JointMapping`, a {target: source} dict (user map
@@ -135,8 +144,24 @@ def retarget(motion: BVHMotion, skeleton: Skeleton, mapping: JointMapping | dict
         module docstring.
     rest: the clip's rest pose: "zero" (all channels zero, BVH's rest) or a
         frame index (e.g. 0 for CMU's synthetic T-pose frame).
+    max_frames: refuse (:class:`OutputError`) more output frames than this,
+        before allocating anything per frame.
+    Raises :class:`NonFiniteError` naming the frame and joint when the
+    joint transforms are not finite.
     Returns :class:`Retargeted` with (F, J, 4, 4) ``world`` and ``local``.
     """
+    return retarget_stream(motion, skeleton, mapping, start, end, fps, mode, rest,
+                           max_frames).retargeted()
+
+
+def retarget_stream(motion: BVHMotion, skeleton: Skeleton, mapping: JointMapping | dict | None = None,
+                    start: int = 0, end: int | None = None, fps: float | None = None,
+                    mode: str = "direction", rest="zero",
+                    max_frames: int | None = None) -> RetargetStream:
+    """Set up the retargeting of ``motion`` onto ``skeleton`` (arguments,
+    checks and errors as :func:`retarget`) without computing any output
+    frame: a :class:`RetargetStream` computes them a block at a time, so
+    memory does not grow with the frame count."""
     if mode not in ("bind", "direction"):
         raise ValueError(f"mode must be 'bind' or 'direction', got {mode!r}")
     n_all = motion.n_frames
@@ -145,12 +170,21 @@ def retarget(motion: BVHMotion, skeleton: Skeleton, mapping: JointMapping | dict
     if start < 0 or end > n_all or start >= end:
         raise InputError(motion.path, f"frame range [{start}, {end}) is empty or outside the clip's "
                                       f"{n_all} frames")
-    if fps is not None and not fps > 0:
-        raise InputError(motion.path, f"fps must be > 0, got {fps}")
+    if fps is not None and not (fps > 0 and np.isfinite(fps)):
+        raise InputError(motion.path, f"fps must be > 0 and finite, got {fps}")
     tnames = list(skeleton.joint_names)
+    n_out = output_frame_count(end - start, motion.fps, fps)
+    if max_frames is not None and n_out > max_frames:
+        raise OutputError(motion.path, f"the shot would have {n_out} frames ({end - start} clip frames "
+                                       f"of {motion.frame_time:g} s at {fps or motion.fps:g} fps), more "
+                                       f"than the limit of {max_frames} (raise it with --max-frames)")
+    require_memory((end - start) * 32 + n_out * 8, f"retargeting {n_out} frames")  # root path
     match = None
     if mapping is None or isinstance(mapping, dict):
-        match = match_clip(motion, skeleton, user_map=mapping)
+        try:
+            match = match_clip(motion, skeleton, user_map=mapping)
+        except KeyError as exc:  # a user map naming joints the clip or skeleton lacks
+            raise InputError(motion.path, f"joint map: {exc.args[0]} (skeleton {skeleton.path or ''})") from None
         require_match(match, motion.path, skeleton.path or "<target skeleton>",
                       "retargeting the clip",
                       "pair them with a JSON joint map {target joint: clip joint} (--map)")
@@ -181,22 +215,33 @@ def retarget(motion: BVHMotion, skeleton: Skeleton, mapping: JointMapping | dict
         if sh != sroot and src_of[th] == sh:
             troot = th
 
-    # ---- clip kinematics
-    frames = np.arange(start, end)
-    grot, gpos = motion.global_rotations_positions(frames)  # (F, Js, 3, 3), (F, Js, 3)
+    # ---- clip kinematics: one pass over the source frames in blocks for
+    # the finite check and the clip floor; per output frame nothing is kept
+    # but the (F, 3) root path
     # the clip joint that drives the target's root carrier: the clip root, or
     # the hips below a floor-level root joint (``joint_Root``)
     s_carrier = int(src_of[troot])
-    root_pos = gpos[:, s_carrier]
     src_fps = motion.fps
-    if fps is None or abs(fps - src_fps) < 1e-9:
-        out_fps = src_fps
-        src_frames = frames.astype(float)
+    same_rate = fps is None or abs(fps - src_fps) < 1e-9
+    out_fps = src_fps if same_rate else float(fps)
+    n_src = end - start
+    root_src = np.empty((n_src, 3))
+    floor_c = np.inf
+    for a in range(0, n_src, BLOCK):
+        b = min(a + BLOCK, n_src)
+        grot_b, gpos_b = motion.global_rotations_positions(np.arange(start + a, start + b))
+        bad = ~(np.isfinite(grot_b).all(axis=(-2, -1)) & np.isfinite(gpos_b).all(axis=-1))
+        if bad.any():
+            f, j = (int(v) for v in np.argwhere(bad)[0])
+            raise NonFiniteError(motion.path, f"clip frame {start + a + f}, joint {motion.joint_names[j]}: "
+                                              "non-finite joint transform (extreme values in the clip?)")
+        root_src[a:b] = gpos_b[:, s_carrier]
+        floor_c = min(floor_c, float(gpos_b[..., 1].min()))
+    F = n_out
+    if same_rate:
+        src_frames = np.arange(start, end).astype(float)
     else:
-        out_fps = float(fps)
-        grot, root_pos, rel = resample_clip(grot, root_pos, src_fps, out_fps)
-        src_frames = start + rel
-    F = grot.shape[0]
+        src_frames = start + np.minimum(np.arange(F) * (src_fps / out_fps), n_src - 1)
 
     # ---- rest data
     if rest == "zero":
@@ -205,12 +250,9 @@ def retarget(motion: BVHMotion, skeleton: Skeleton, mapping: JointMapping | dict
     else:
         r0, p0 = motion.global_rotations_positions([int(rest)])
         r0, srest = r0[0], p0[0]
-        grot = np.swapaxes(r0, -1, -2)[None] @ grot  # relative to that rest
 
     bind = np.asarray(skeleton.bind_world, dtype=np.float64)
     bpos = bind[:, 3, :3]
-    bscale = np.linalg.norm(bind[:, :3, :3], axis=-1).mean(axis=-1)  # (J,) uniform scale
-    brot = rotation_part(bind)  # (J, 3, 3)
 
     # ---- per-bone rest correction Q (world, row-vector: d_clip @ Q = d_target)
     desc = _descendants(tparents)
@@ -251,48 +293,183 @@ def retarget(motion: BVHMotion, skeleton: Skeleton, mapping: JointMapping | dict
         lt, lc = leg_length(match.target, bpos), leg_length(match.source, srest)
         if lt and lc:
             ratio_xz = lt / lc
-    # clip floor: the lowest joint over the retargeted frames
-    floor_c = float(gpos[..., 1].min())
+    return RetargetStream(motion=motion, skeleton=skeleton, mapping=mapping, mode=mode, fps=out_fps,
+                          n_frames=F, start=start, same_rate=same_rate, src_fps=src_fps,
+                          source_frames=src_frames, root_src=root_src, floor_c=floor_c, r0=r0,
+                          src_of=src_of, troot=troot, Q=Q, ratio=ratio, floor_t=floor_t, ratio_xz=ratio_xz,
+                          match=match)
 
-    # ---- target FK over frames (loop over joints)
-    W = np.empty((F, J, 4, 4))
-    W[..., 3] = [0.0, 0.0, 0.0, 1.0]
-    rot = np.empty((F, J, 3, 3))
-    pos = np.empty((F, J, 3))
-    inv_bind = invert(bind)
-    for t in range(J):
-        p = tparents[t]
-        s = src_of[t]
-        if s >= 0:
-            g = grot[:, s]
-            if mode == "bind":
-                rot[:, t] = brot[t] @ Q[t].T @ g @ Q[t]
+
+#: output frames computed at once by :class:`RetargetStream` (and source
+#: frames per block in its first pass): memory does not grow with the clip
+BLOCK = 512
+
+
+@dataclass
+class RetargetStream:
+    """A retargeted clip computed on demand, a block of output frames at a
+    time (:meth:`world`, :meth:`local`), so that memory stays flat however
+    long the shot; :meth:`retargeted` computes every frame at once. Made by
+    :func:`retarget_stream`; the fields are its set-up (rest correction Q,
+    hip-height ratio, floors, the clip's (F_src, 3) root path)."""
+    motion: BVHMotion
+    skeleton: Skeleton
+    mapping: JointMapping
+    mode: str
+    fps: float
+    n_frames: int
+    start: int
+    same_rate: bool
+    src_fps: float
+    source_frames: np.ndarray
+    root_src: np.ndarray
+    floor_c: float
+    r0: np.ndarray | None
+    src_of: np.ndarray
+    troot: int
+    Q: np.ndarray
+    ratio: float
+    floor_t: float
+    ratio_xz: float = 1.0          # horizontal travel: the leg-length ratio
+    match: RigMatch | None = None  # the role pairing, when the mapping came from it
+    # feet on the floor (motion.floor.place_on_floor): every frame moves up by
+    # floor_dy, less floor_slope (2,) x the carrier's horizontal travel since
+    # frame 0 (floor_ground0 (2,)) where a tilted capture floor was levelled
+    floor_dy: float = 0.0
+    floor_slope: np.ndarray | None = None
+    floor_ground0: np.ndarray | None = None
+
+    @property
+    def joint_names(self) -> list[str]:
+        return list(self.skeleton.joint_names)
+
+    @property
+    def report(self) -> dict:
+        report = self.match.report() if self.match is not None else self.mapping.report()
+        if self.floor_dy or self.floor_slope is not None:
+            report["floor_shift_m"] = self.floor_dy
+            slope = 0.0 if self.floor_slope is None else float(np.linalg.norm(self.floor_slope))
+            report["floor_tilt_deg"] = float(np.degrees(np.arctan(slope)))
+        report.update({"mode": self.mode, "hip_height_ratio": self.ratio, "travel_ratio": self.ratio_xz,
+                       "root_joint": self.joint_names[self.troot], "frames": self.n_frames,
+                       "fps": self.fps, "source_range": [self.start, self.start + len(self.root_src)]})
+        return report
+
+    def _clip(self, a: int, b: int):
+        """Clip world rotations (b-a, Js, 3, 3) and root positions (b-a, 3)
+        of output frames [a, b), resampled when the rates differ."""
+        n = len(self.root_src)
+        if self.same_rate:
+            grot, _ = self.motion.global_rotations_positions(np.arange(self.start + a, self.start + b))
+            root = self.root_src[a:b]
+        else:
+            frames = np.minimum(np.arange(a, b) * (self.src_fps / self.fps), n - 1)
+            i0 = np.floor(frames).astype(int)
+            i1 = np.minimum(i0 + 1, n - 1)
+            t = frames - i0
+            lo, hi = int(i0.min()), int(i1.max()) + 1
+            g, _ = self.motion.global_rotations_positions(np.arange(self.start + lo, self.start + hi))
+            q = quat_from_matrix(g)  # (hi-lo, Js, 4)
+            qs = quat_slerp(q[i0 - lo], q[i1 - lo], np.broadcast_to(t[:, None], (b - a, g.shape[1])))
+            grot = matrix_from_quat(qs)
+            root = self.root_src[i0] * (1 - t)[:, None] + self.root_src[i1] * t[:, None]
+        if self.r0 is not None:
+            grot = np.swapaxes(self.r0, -1, -2)[None] @ grot  # relative to that rest
+        return grot, root
+
+    def world(self, a: int = 0, b: int | None = None) -> np.ndarray:
+        """(b-a, J, 4, 4) internal world joint transforms of output frames [a, b)."""
+        b = self.n_frames if b is None else min(int(b), self.n_frames)
+        a = int(a)
+        grot, root_pos = self._clip(a, b)
+        root0 = self.root_src[0]  # output frame 0 is the first clip frame (as resampled)
+        if not self.same_rate:
+            root0 = self.root_src[0] * 1.0 + self.root_src[min(1, len(self.root_src) - 1)] * 0.0
+        skeleton, Q, mode = self.skeleton, self.Q, self.mode
+        tparents = np.asarray(skeleton.parents)
+        bind = np.asarray(skeleton.bind_world, dtype=np.float64)
+        bpos = bind[:, 3, :3]
+        bscale = np.linalg.norm(bind[:, :3, :3], axis=-1).mean(axis=-1)  # (J,) uniform scale
+        brot = rotation_part(bind)  # (J, 3, 3)
+        F, J = b - a, len(tparents)
+        ratio, floor_t, floor_c = self.ratio, self.floor_t, self.floor_c
+        W = np.empty((F, J, 4, 4))
+        W[..., 3] = [0.0, 0.0, 0.0, 1.0]
+        rot = np.empty((F, J, 3, 3))
+        pos = np.empty((F, J, 3))
+        inv_bind = invert(bind)
+        for t in range(J):
+            p = tparents[t]
+            s = self.src_of[t]
+            if s >= 0:
+                g = grot[:, s]
+                if mode == "bind":
+                    rot[:, t] = brot[t] @ Q[t].T @ g @ Q[t]
+                else:
+                    rot[:, t] = brot[t] @ Q[t].T @ g
+            elif p >= 0:
+                rot[:, t] = (brot[t] @ brot[p].T) @ rot[:, p]
             else:
-                rot[:, t] = brot[t] @ Q[t].T @ g
-        elif p >= 0:
-            rot[:, t] = (brot[t] @ brot[p].T) @ rot[:, p]
-        else:
-            rot[:, t] = brot[t]
-        if t == troot:
-            d = root_pos - root_pos[:1]
-            pos[:, t, 0] = bpos[t, 0] + ratio_xz * d[:, 0]
-            pos[:, t, 2] = bpos[t, 2] + ratio_xz * d[:, 2]
-            pos[:, t, 1] = floor_t + ratio * (root_pos[:, 1] - floor_c)
-        elif p >= 0:
-            off = (bind[t] @ inv_bind[p])[3, :3]  # bind offset in the parent's frame
-            pos[:, t] = np.einsum("i,fij->fj", off, W[:, p, :3, :3]) + pos[:, p]
-        else:
-            pos[:, t] = bpos[t]
-        W[:, t, :3, :3] = bscale[t] * rot[:, t]
-        W[:, t, 3, :3] = pos[:, t]
-        W[:, t, :3, 3] = 0.0
-    local = skeleton.local_from_world(W)
-    report = match.report() if match is not None else mapping.report()
-    report.update({"mode": mode, "hip_height_ratio": ratio, "travel_ratio": ratio_xz, "root_joint": tnames[troot],
-                   "frames": F, "fps": out_fps, "source_range": [start, end]})
-    return Retargeted(world=W, local=local, fps=out_fps, times=np.arange(F) / out_fps,
-                      joint_names=tnames, mapping=mapping, source_frames=src_frames,
-                      hip_height_ratio=ratio, report=report)
+                rot[:, t] = brot[t]
+            if t == self.troot:
+                d = root_pos - root0
+                pos[:, t, 0] = bpos[t, 0] + self.ratio_xz * d[:, 0]
+                pos[:, t, 2] = bpos[t, 2] + self.ratio_xz * d[:, 2]
+                pos[:, t, 1] = floor_t + ratio * (root_pos[:, 1] - floor_c)
+            elif p >= 0:
+                off = (bind[t] @ inv_bind[p])[3, :3]  # bind offset in the parent's frame
+                pos[:, t] = np.einsum("i,fij->fj", off, W[:, p, :3, :3]) + pos[:, p]
+            else:
+                pos[:, t] = bpos[t]
+            W[:, t, :3, :3] = bscale[t] * rot[:, t]
+            W[:, t, 3, :3] = pos[:, t]
+            W[:, t, :3, 3] = 0.0
+        if self.floor_slope is not None:
+            W[:, :, 3, 1] -= ((W[:, self.troot, 3][:, [0, 2]] - self.floor_ground0) @ self.floor_slope)[:, None]
+        if self.floor_dy:
+            W[:, :, 3, 1] += self.floor_dy
+        check_finite_transforms(W, self.source_frames[a:b], self.joint_names, self.motion.path, first=a)
+        return W
+
+    def local(self, a: int = 0, b: int | None = None, world: np.ndarray | None = None) -> np.ndarray:
+        """(b-a, J, 4, 4) ``skeleton.local_from_world`` of :meth:`world` (pass
+        ``world`` when already computed)."""
+        return self.skeleton.local_from_world(self.world(a, b) if world is None else world)
+
+    def blocks(self, size: int = BLOCK):
+        """(a, b) output frame ranges of at most ``size`` frames."""
+        return [(a, min(a + size, self.n_frames)) for a in range(0, self.n_frames, size)]
+
+    def retargeted(self) -> Retargeted:
+        """Every frame at once, as :func:`retarget` returns it."""
+        # world, local, their inverses, rotations, positions and the clip's
+        # block: about 7 (J, 4, 4) float64 arrays per frame
+        require_memory(self.n_frames * len(self.src_of) * 7 * 128,
+                       f"retargeting {self.n_frames} frames at once")
+        W = self.world(0, self.n_frames)
+        local = self.skeleton.local_from_world(W)
+        F, out_fps = self.n_frames, self.fps
+        return Retargeted(world=W, local=local, fps=out_fps, times=np.arange(F) / out_fps,
+                          joint_names=self.joint_names, mapping=self.mapping,
+                          source_frames=self.source_frames, hip_height_ratio=self.ratio,
+                          report=self.report)
+
+
+def check_finite_transforms(world: np.ndarray, source_frames: np.ndarray, joint_names, path,
+                            first: int = 0) -> None:
+    """Raise :class:`NonFiniteError` naming the first frame and joint whose
+    (F, J, 4, 4) transform holds NaN/inf or is singular (zero scale);
+    ``first`` is the output frame number of ``world[0]``."""
+    ok = np.isfinite(world).all(axis=(-2, -1))
+    if ok.all():
+        scale = np.abs(world[..., :3, :3]).max(axis=(-2, -1))
+        ok = scale > 1e-12
+        if ok.all():
+            return
+    f, j = (int(v) for v in np.argwhere(~ok)[0])
+    raise NonFiniteError(path, f"retargeting gave a non-finite or singular transform at output frame {first + f} "
+                               f"(clip frame {float(source_frames[f]):g}), joint {joint_names[j]} "
+                               "(extreme values in the clip or the skeleton?)")
 
 
 def match_clip(motion: BVHMotion, skeleton: Skeleton, user_map: dict | None = None) -> RigMatch:
