@@ -8,6 +8,7 @@ BVH clips; the few that need the data set are marked by conftest.
 """
 from __future__ import annotations
 
+import json
 import signal
 import subprocess
 import sys
@@ -17,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.tiny_stage import ITEM_FACES, ITEM_POINTS, TINY_USDA, write_tiny
+from tests.tiny_stage import ITEM_FACES, ITEM_POINTS, TINY_MAP, TINY_USDA, write_tiny, write_tiny_map
 from wearfit_usd.cli import main
 from wearfit_usd.errors import BVHError, GeometryError, NonFiniteError, OutputError, USDInputError
 from wearfit_usd.io.bvh import read_bvh
@@ -67,6 +68,13 @@ def _bvh(tmp_path, text=MINI_BVH, name="clip.bvh") -> Path:
     p = tmp_path / name
     p.write_text(text)
     return p
+
+
+def _tiny_args(folder) -> list:
+    """animate's options for the tiny stage: its 2-joint skeleton has no legs
+    or arms to pair by role, so the user's joint map pairs it with the clip
+    and the dressing's body fit is a similarity (--no-pose)."""
+    return ["--map", write_tiny_map(folder), "--no-pose"]
 
 
 def _run(argv, capsys):
@@ -150,7 +158,7 @@ def test_non_finite_retarget_names_frame_and_joint(tmp_path):
     m = read_bvh(_bvh(tmp_path))
     m.values[1, 3] = np.nan  # past the reader's checks (e.g. from an API user)
     with pytest.raises(NonFiniteError) as e:
-        retarget(m, target.skeleton, fps=None)
+        retarget(m, target.skeleton, fps=None, mapping=json.loads(TINY_MAP))
     assert "clip frame 1, joint Hips" in str(e.value)
     # the target side: world transforms checked before they are written
     from wearfit_usd.motion.retarget import check_finite_transforms
@@ -352,7 +360,8 @@ def test_output_extension_checked_up_front(tmp_path, capsys, command):
 def test_report_written_atomically(tmp_path, capsys):
     ref = write_tiny(tmp_path / "ref.usda")
     rep = tmp_path / "rep.json"
-    rc, _ = _run(["animate", ref, ref, WALK, "-o", tmp_path / "o.usdc", "--report", rep, "-q"], capsys)
+    rc, _ = _run(["animate", ref, ref, WALK, *_tiny_args(tmp_path),
+                    "-o", tmp_path / "o.usdc", "--report", rep, "-q"], capsys)
     assert rc == 0 and rep.read_text().startswith("{") and _leftovers(tmp_path) == []
 
 
@@ -362,7 +371,8 @@ def test_clips_folder_keeps_foreign_files(tmp_path, capsys):
     clips.mkdir()
     (clips / "notes.txt").write_text("mine")
     (clips / "items.0099.usdc").write_text("stale layer of an earlier, longer shot")
-    rc, err = _run(["animate", ref, ref, WALK, "-o", tmp_path / "shot.usda", "--clip-frames", "25", "-q"],
+    rc, err = _run(["animate", ref, ref, WALK, *_tiny_args(tmp_path),
+                    "-o", tmp_path / "shot.usda", "--clip-frames", "25", "-q"],
                    capsys)
     assert rc == 0, err
     assert sorted(p.name for p in clips.iterdir()) == ["items.0000.usdc", "items.0001.usdc",
@@ -378,7 +388,8 @@ def test_clips_folder_keeps_foreign_files(tmp_path, capsys):
 def test_clip_folder_path_taken_by_a_file(tmp_path, capsys):
     ref = write_tiny(tmp_path / "ref.usda")
     (tmp_path / "shot.clips").write_text("a file")
-    rc, err = _run(["animate", ref, ref, WALK, "-o", tmp_path / "shot.usda", "--clip-frames", "25"], capsys)
+    rc, err = _run(["animate", ref, ref, WALK, *_tiny_args(tmp_path),
+                    "-o", tmp_path / "shot.usda", "--clip-frames", "25"], capsys)
     assert rc == 2 and "is not a folder" in err and _leftovers(tmp_path) == []
 
 
@@ -402,7 +413,8 @@ def test_full_disk_during_close_leaves_nothing(tmp_path):
         resource.setrlimit(resource.RLIMIT_FSIZE, (3_000, resource.RLIM_INFINITY))
     ref = write_tiny(tmp_path / "ref.usda")
     for extra in ([], ["--clip-frames", "20"]):
-        r = _subprocess_cli(tmp_path, ["animate", ref, ref, WALK, "-o", tmp_path / "s.usdc", "-q", *extra],
+        r = _subprocess_cli(tmp_path, ["animate", ref, ref, WALK, *_tiny_args(tmp_path),
+                    "-o", tmp_path / "s.usdc", "-q", *extra],
                             preexec=small_files)
         assert r.returncode == 1, r.stderr
         assert "Traceback" not in r.stderr and "cannot write" in r.stderr
@@ -422,7 +434,8 @@ def test_signals_clean_up_like_ctrl_c(tmp_path, sig):
                 os.kill(os.getpid(), {int(sig)})
             return orig(self, frame, pts)
         usd_shot.ShotWriter.write_frame = write_frame
-        sys.exit(main({["animate", str(ref), str(ref), str(WALK), "-o", str(tmp_path / "s.usdc"),
+        sys.exit(main({["animate", str(ref), str(ref), str(WALK), *[str(a) for a in _tiny_args(tmp_path)],
+                        "-o", str(tmp_path / "s.usdc"),
                         "--clip-frames", "10", "-q"]!r}))
     """)
     r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)

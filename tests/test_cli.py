@@ -7,9 +7,8 @@ import sys
 
 import pytest
 
-from wearfit_usd.cli import COMMANDS, main
-
 from tests.conftest import BVH_DIR, USD_DIR
+from wearfit_usd.cli import COMMANDS, main
 
 
 def test_help_lists_every_subcommand(capsys):

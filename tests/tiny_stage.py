@@ -67,3 +67,15 @@ def write_tiny(path, old: str | None = None, new: str | None = None) -> Path:
     path = Path(path)
     path.write_text(text)
     return path
+
+
+#: the tiny skeleton's joints paired with the packaged clips' (a 2-joint
+#: skeleton has no legs or arms for the role matcher: the user's map pairs it)
+TINY_MAP = '{"hips": "Hips", "spine": "Spine"}'
+
+
+def write_tiny_map(folder) -> Path:
+    """Write :data:`TINY_MAP` to ``folder/tiny_map.json``; returns its path."""
+    path = Path(folder) / "tiny_map.json"
+    path.write_text(TINY_MAP)
+    return path

@@ -8,6 +8,7 @@ def author_animation(stage, skel_prim_path: str, local: np.ndarray, joints) -> N
     """Author a SkelAnimation with (F, J, 4, 4) local transforms on ``stage``
     (in its session layer) and bind it to the skeleton."""
     from pxr import Gf, Sdf, UsdSkel, Vt
+
     from wearfit_usd.transforms import decompose, quat_from_matrix
     with_edit = stage.GetEditTarget()
     stage.SetEditTarget(stage.GetSessionLayer())

@@ -6,12 +6,11 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from tests.conftest import BVH_DIR, USD_DIR
 from wearfit_usd.animate.cloth import ClothSolver, colour_edges
 from wearfit_usd.geometry.closest import SurfaceQuery
 from wearfit_usd.geometry.mesh import edges as mesh_edges
 from wearfit_usd.kernels import HAVE_NUMBA
-
-from tests.conftest import BVH_DIR, USD_DIR
 
 
 def grid_sheet(n: int = 11, size: float = 1.0, y: float = 0.0):
@@ -184,6 +183,7 @@ def _outside_skirt(skirt_faces, skirt_pts, body_pts, sign):
 def _shot_frames(path, item, frames):
     """(body points, item points) in internal space of the shot at path, per frame."""
     from pxr import Usd, UsdGeom, UsdSkel
+
     from wearfit_usd.io.usd import read_character
     from wearfit_usd.motion.skinning import skin_mesh
     from wearfit_usd.transforms import transform_points

@@ -7,8 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from wearfit_usd.animate.measures import (MEASURES, MotionLimits, MotionMeasures, cast_rays, ray_triangle,
-                                          worst_frames)
+from wearfit_usd.animate.measures import MEASURES, MotionLimits, MotionMeasures, cast_rays, ray_triangle, worst_frames
 
 
 def grid(nx: int, ny: int, x0: float, y0: float, h: float, z: float = 0.0):
@@ -228,11 +227,13 @@ def test_walk_report_matches_a_direct_computation(usd_dir, bvh_dir, tmp_path):
     """animate's measures on ref_female / body_female_thin, 20 walk frames,
     equal a direct computation on the written shot's last frame."""
     from pxr import Usd, UsdGeom
+
     from wearfit_usd.animate.try_on import AnimateOptions, animate, dress_items
     from wearfit_usd.cli import main
     from wearfit_usd.dress.metrics import item_rigid_groups
     from wearfit_usd.io.bvh import read_bvh
     from wearfit_usd.io.usd import read_character
+    from wearfit_usd.motion.floor import place_on_floor
     from wearfit_usd.motion.retarget import retarget
     from wearfit_usd.motion.skinning import skin_points, skinning_matrices
     from wearfit_usd.transforms import transform_points
@@ -264,6 +265,7 @@ def test_walk_report_matches_a_direct_computation(usd_dir, bvh_dir, tmp_path):
     mm = MotionMeasures(tgt.body.faces, tgt.body.points, [(m.name, m.points, m.faces) for m in dressed.items],
                         [item_rigid_groups(dressed.plan, sl) for sl in dressed.plan.item_slices()])
     rt = retarget(read_bvh(clip), tgt.skeleton, start=1, end=81, fps=30.0)
+    rt, _ = place_on_floor(rt, tgt.skeleton, tgt.body, "auto")  # as animate's default --floor auto
     f = 19
     body_f = skin_points(tgt.body.points, tgt.body.joint_indices, tgt.body.joint_weights,
                          skinning_matrices(tgt.skeleton.bind_world, rt.world[f]))

@@ -4,17 +4,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from wearfit_usd.animate.try_on import AnimateOptions, animate
-from wearfit_usd.io.bvh import read_bvh
-from wearfit_usd.cli import main
-from wearfit_usd.errors import USDInputError
-from wearfit_usd.motion.skinning import skin_mesh
-from wearfit_usd.transforms import transform_points
-from wearfit_usd.io.usd import read_character
-from wearfit_usd.io.usd_validate import validate_stage
-
 from tests.conftest import BVH_DIR, USD_DIR
 from tests.usdskel_reference import usdskel_skinned_points
+from wearfit_usd.animate.try_on import AnimateOptions, animate
+from wearfit_usd.cli import main
+from wearfit_usd.errors import USDInputError
+from wearfit_usd.io.bvh import read_bvh
+from wearfit_usd.io.usd import read_character
+from wearfit_usd.io.usd_validate import validate_stage
+from wearfit_usd.motion.skinning import skin_mesh
+from wearfit_usd.transforms import transform_points
 
 
 @pytest.fixture(scope="module")
@@ -153,6 +152,7 @@ def test_pointed_foot_keeps_the_shoes_on(tmp_path, ref_female):
     shoe vertex on the foot (the push-out once used an extrapolated plane
     offset as clearance and threw shoe vertices 0.3 m away)."""
     from pxr import Usd, UsdSkel
+
     from wearfit_usd.geometry.closest import SurfaceQuery
     target = read_character(USD_DIR / "body_female_heavy.usdc")
     clip = read_bvh(BVH_DIR / "cmu_05_12_dance_arms_held_high.bvh")

@@ -7,9 +7,9 @@ import json
 import numpy as np
 import pytest
 
-pytestmark = pytest.mark.slow  # the fixture runs the whole demo (about 40 s)
-
 from wearfit_usd.cli import main
+
+pytestmark = pytest.mark.slow  # the fixture runs the whole demo (about 40 s)
 
 
 @pytest.fixture(scope="module")

@@ -7,11 +7,20 @@ import numpy as np
 import pytest
 import trimesh
 
-from wearfit_usd.geometry.closest import signed_distance
-from wearfit_usd.demo.samples import (CLEARANCE, GARMENT_SETS, PRESETS, REMESHED_TARGETS,
-                                      SAME_TOPOLOGY_TARGETS, make_body, make_items, make_outfit,
-                                      make_target, write_sample_set)
+from wearfit_usd.demo.samples import (
+    CLEARANCE,
+    GARMENT_SETS,
+    PRESETS,
+    REMESHED_TARGETS,
+    SAME_TOPOLOGY_TARGETS,
+    make_body,
+    make_items,
+    make_outfit,
+    make_target,
+    write_sample_set,
+)
 from wearfit_usd.demo.samples.body import JOINT_NAMES, layout
+from wearfit_usd.geometry.closest import signed_distance
 from wearfit_usd.motion.skinning import skin_mesh
 from wearfit_usd.transforms import make_matrix, matrix_from_quat
 

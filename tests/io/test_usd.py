@@ -5,15 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from wearfit_usd.errors import GeometryError, USDInputError, InputError
-from wearfit_usd.motion.skinning import skin_mesh
-from wearfit_usd.transforms import make_matrix, matrix_from_quat, transform_points
+from tests.conftest import USD_DIR
+from tests.usdskel_reference import usdskel_skinned_points
+from wearfit_usd.errors import GeometryError, InputError, USDInputError
 from wearfit_usd.io.usd import read_character, triangulate, write_character
 from wearfit_usd.io.usd_shot import ShotWriter
 from wearfit_usd.io.usd_validate import validate_stage, validator_count
-
-from tests.conftest import USD_DIR
-from tests.usdskel_reference import usdskel_skinned_points
+from wearfit_usd.motion.skinning import skin_mesh
+from wearfit_usd.transforms import make_matrix, matrix_from_quat, transform_points
 
 
 def test_triangulate_quads_and_ngons():

@@ -6,12 +6,12 @@ import json
 import numpy as np
 import pytest
 
-from wearfit_usd.io.bvh import read_bvh
 from wearfit_usd.errors import InputError
+from wearfit_usd.io.bvh import read_bvh
+from wearfit_usd.io.usd import read_character
 from wearfit_usd.motion.joint_maps import detect_convention, load_user_map, map_joints, normalize
 from wearfit_usd.motion.retarget import retarget
 from wearfit_usd.motion.skinning import skin_mesh
-from wearfit_usd.io.usd import read_character
 
 
 @pytest.fixture(scope="module")

@@ -12,7 +12,8 @@ import pytest
 
 from wearfit_usd.errors import InputError
 from wearfit_usd.io.bvh import read_bvh
-from wearfit_usd.motion.joint_maps import map_joints, roles as name_roles
+from wearfit_usd.motion.joint_maps import map_joints
+from wearfit_usd.motion.joint_maps import roles as name_roles
 from wearfit_usd.motion.rig_match import KEY_ROLES, find_roles, match_skeletons, structure_roles
 
 DATA = Path("/work/shared/data")

@@ -60,11 +60,11 @@ import time
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ..dress import regions as R
 from ..geometry.closest import VertexNormals
 from ..geometry.mesh import adjacency, similarity_fit
-from ..kernels.cloth import cloth_frame
 from ..kernels import HAVE_NUMBA, RadiusGrid
-from ..dress import regions as R
+from ..kernels.cloth import cloth_frame
 from .loose import cloth_weights, smoothstep
 
 GRAVITY = (0.0, -9.81, 0.0)  # m/s^2, internal space (Y up)

@@ -27,22 +27,24 @@ import time
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from ..model import Character
-from .cloth import ClothSolver
-from .frame_eval import FrameEvaluator
-from .measures import MEASURES, MotionMeasures, worst_frames
+
+from ..dress.apply import apply as apply_plan
+from ..dress.apply import dress
 from ..dress.metrics import item_rigid_groups
-from .penetration_guard import PenetrationGuard
-from .skin_transfer import transfer_weights
-from ..dress.apply import apply as apply_plan, dress
 from ..dress.plan import plan as plan_dress
 from ..errors import NonFiniteError, USDInputError
 from ..fit.body_fit import fit_character
 from ..io.usd_shot import ShotWriter
-from ..progress import info, progress
+from ..model import Character
 from ..motion.floor import place_on_floor
 from ..motion.retarget import BLOCK, retarget, retarget_stream
 from ..motion.skinning import Skinner, skin_points, skinning_matrices
+from ..progress import info, progress
+from .cloth import ClothSolver
+from .frame_eval import FrameEvaluator
+from .measures import MEASURES, MotionMeasures, worst_frames
+from .penetration_guard import PenetrationGuard
+from .skin_transfer import transfer_weights
 
 
 @dataclass
@@ -284,7 +286,7 @@ def _motion_measures(reference: Character, target: Character, dressed, opt: Anim
     and ``untangle``, otherwise one more dressing), with the rigid groups of
     its plan. The same reference in both modes: bind and lbs compare."""
     if not ((opt.mode == "lbs" or opt.dress_pose == "bind") and opt.untangle):
-        dressed = dress_items(reference, target, k=opt.k, prepared=ref_plan)
+        dressed = dress_items(reference, target, k=opt.k, prepared=ref_plan, pose_align=opt.pose_align)
     pl = dressed.plan
     return MotionMeasures(target.body.faces, target.body.points,
                           [(m.name, m.points, m.faces) for m in dressed.items],

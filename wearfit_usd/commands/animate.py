@@ -4,8 +4,16 @@ from __future__ import annotations
 import argparse
 
 from ..errors import InputError
-from .args import (MAX_FRAMES, bounded_float, bounded_int, check_distinct, check_inputs, check_output, fps_arg,
-                   write_report)
+from .args import (
+    MAX_FRAMES,
+    bounded_float,
+    bounded_int,
+    check_distinct,
+    check_inputs,
+    check_output,
+    fps_arg,
+    write_report,
+)
 
 
 def register(sub, common):
@@ -76,8 +84,8 @@ def run(args) -> int:
     from ..animate.measures import MotionLimitError, MotionLimits, describe_worst
     from ..animate.try_on import AnimateOptions, animate
     from ..io.bvh import read_bvh
-    from ..progress import info
     from ..io.usd import read_character
+    from ..progress import info
     fps = args.fps
     check_inputs(args.reference, args.target, args.clip, args.mapping)
     inputs = (args.reference, args.target, args.clip, args.mapping)

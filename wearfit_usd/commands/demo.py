@@ -23,9 +23,9 @@ def run(args) -> int:
     from pathlib import Path
 
     from ..demo.demo import run_demo
-    from ..errors import InputError
     from ..demo.samples import PRESETS
     from ..demo.samples.motions import CLIPS
+    from ..errors import InputError
 
     shots = None
     if args.clip:
@@ -51,7 +51,7 @@ def run(args) -> int:
         print(f"  line-up:       {rep['files']['lineup']}")
     print(f"  samples:       {out / 'samples'}/ (reference.usda + target_*.usda)")
     print(f"  dressed:       {out / 'dressed'}/")
-    for name, s in rep["shots"].items():
+    for s in rep["shots"].values():
         print(f"  shot:          {s['file']}  ({s['frames']} frames, worst-frame new penetration "
               f"{s['worst_frame_new_pen_pct']:.2f} %)")
         if "preview" in s:

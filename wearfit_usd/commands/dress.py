@@ -44,9 +44,9 @@ def register(sub, common):
 
 
 def run(args) -> int:
-    from ..progress import info
     from ..dress.apply import dress
     from ..io.usd import read_character, write_character
+    from ..progress import info
 
     ref_path, tgt_path, out = Path(args.reference), Path(args.target), Path(args.output)
     check_inputs(ref_path, tgt_path)

@@ -50,8 +50,8 @@ def fitted_character(ref, target, result):
 
 def run(args) -> int:
     from ..fit.body_fit import fit_character
-    from ..progress import info, warn
     from ..io.usd import read_character, write_character
+    from ..progress import info, warn
 
     check_inputs(args.reference, args.target)
     out = check_output(args.output, (args.reference, args.target))

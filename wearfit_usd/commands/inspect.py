@@ -46,6 +46,7 @@ def skin_weight_stats(mesh, n_joints: int) -> dict:
 
 def describe_usd(path: Path) -> dict:
     from pxr import UsdGeom
+
     from ..io.usd import open_stage, read_character
     stage = open_stage(path)
     char = read_character(path, require_skeleton=False)

@@ -45,6 +45,7 @@ def register(sub, common):
 
 def run(args) -> int:
     from pathlib import Path
+
     from ..progress import info, verbosity
     from ..render.preview import render_to_dir
     scene = Path(args.scene)

@@ -27,7 +27,6 @@ from ..motion.rig_match import RigMatch, match_skeletons
 from ..transforms import rotation_between, rotation_part
 from ..types import Matrices4, Matrix4, Points, Scalars
 
-
 # --------------------------------------------------------------------------
 # joint mapping
 

@@ -94,7 +94,7 @@ def open_stage(path):
     try:
         stage = Usd.Stage.Open(str(p))
     except Exception as exc:  # pxr raises Tf.ErrorException
-        raise USDInputError(path, f"cannot open as USD: {str(exc).strip().splitlines()[-1]}")
+        raise USDInputError(path, f"cannot open as USD: {str(exc).strip().splitlines()[-1]}") from None
     if stage is None:
         raise USDInputError(path, "cannot open as USD")
     return stage
@@ -423,8 +423,7 @@ def _read_skinned_mesh(stage, prim, skinning_query, skeleton: Skeleton, path) ->
     mesh = _read_mesh(stage, prim, np.eye(4), path)
     # _read_mesh applied the prim's own xform; UsdSkel ignores it for skinned
     # meshes: bind shape = points @ geomBindTransform in skeleton space.
-    from pxr import UsdGeom
-    from pxr import Usd
+    from pxr import Usd, UsdGeom
     pts = _np(_get(path, UsdGeom.Mesh(prim).GetPointsAttr(), Usd.TimeCode.EarliestTime()))
     gb = _np(skinning_query.GetGeomBindTransform())
     mesh.points = transform_points(pts, gb @ skeleton.skel_to_world)

@@ -36,14 +36,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..io.bvh import BVHMotion
 from ..errors import InputError, NonFiniteError, OutputError
+from ..io.bvh import BVHMotion
+from ..model import Skeleton
 from ..resources import require_memory
+from ..transforms import invert, matrix_from_quat, quat_from_matrix, quat_slerp, rotation_between, rotation_part
 from .joint_maps import JointMapping, normalize, roles
 from .rig_match import RigMatch, leg_length, match_skeletons, require_match
-from ..model import Skeleton
-from ..transforms import (invert, matrix_from_quat, quat_from_matrix, quat_slerp,
-                         rotation_between, rotation_part)
 
 
 @dataclass
@@ -185,9 +184,10 @@ def retarget_stream(motion: BVHMotion, skeleton: Skeleton, mapping: JointMapping
             match = match_clip(motion, skeleton, user_map=mapping)
         except KeyError as exc:  # a user map naming joints the clip or skeleton lacks
             raise InputError(motion.path, f"joint map: {exc.args[0]} (skeleton {skeleton.path or ''})") from None
-        require_match(match, motion.path, skeleton.path or "<target skeleton>",
-                      "retargeting the clip",
-                      "pair them with a JSON joint map {target joint: clip joint} (--map)")
+        if not mapping:  # a user's joint map overrides the key-role requirement
+            require_match(match, motion.path, skeleton.path or "<target skeleton>",
+                          "retargeting the clip",
+                          "pair them with a JSON joint map {target joint: clip joint} (--map)")
         mapping = match.mapping
     sidx = {n: i for i, n in enumerate(motion.joint_names)}
     tparents = np.asarray(skeleton.parents)

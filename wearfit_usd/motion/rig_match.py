@@ -34,7 +34,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InputError
-from .joint_maps import JointMapping, map_joints, roles as name_roles
+from .joint_maps import JointMapping, map_joints
+from .joint_maps import roles as name_roles
 
 #: roles that must be paired for pose alignment and retargeting
 KEY_ROLES: tuple[str, ...] = (
@@ -278,7 +279,7 @@ def structure_roles(names, parents, positions) -> tuple[dict, dict, np.ndarray, 
         legs[tag] = (chain[i], chain[j], chain[k], toe, cost, chain[:i])
     # facing from the toes, left = up x forward
     fw = np.zeros(3)
-    for thigh, knee, ankle, toe, _, _ in legs.values():
+    for _thigh, _knee, ankle, toe, _, _ in legs.values():
         if toe is not None:
             fw += pos[toe] - pos[ankle]
     fw[1] = 0.0

@@ -21,8 +21,7 @@ import os
 from pathlib import Path
 
 from ...io.usd import write_character
-from .body import (PRESETS, REMESHED_TARGETS, SAME_TOPOLOGY_TARGETS, BodyParams, body_params,
-                   make_body, morph_body)
+from .body import PRESETS, REMESHED_TARGETS, SAME_TOPOLOGY_TARGETS, BodyParams, body_params, make_body, morph_body
 from .garments import GARMENT_CLEARANCE, LOOSE_GARMENTS, make_garments
 from .items import CLEARANCE, make_items
 

@@ -17,10 +17,9 @@ from dataclasses import asdict, dataclass, fields
 import numpy as np
 import scipy.sparse as sp
 
-from ...model import Character, Mesh, Skeleton
 from ...io.usd import triangulate
-from .implicit import (Primitive, Solid, best_diagonal, relax_on_surface, sample_grid,
-                       surface_nets, vertex_adjacency)
+from ...model import Character, Mesh, Skeleton
+from .implicit import Primitive, Solid, best_diagonal, relax_on_surface, sample_grid, surface_nets, vertex_adjacency
 
 REF_HEIGHT = 1.75
 SOURCE_PREFIX = "wearfit-samples:body"
@@ -62,7 +61,7 @@ class BodyParams:
         return SOURCE_PREFIX + "?" + "&".join(f"{k}={v:g}" for k, v in asdict(self).items())
 
     @classmethod
-    def from_source(cls, source: str) -> "BodyParams":
+    def from_source(cls, source: str) -> BodyParams:
         if not str(source).startswith(SOURCE_PREFIX + "?"):
             raise ValueError(f"{source!r} is not a wearfit sample body")
         kv = dict(part.split("=") for part in source.split("?", 1)[1].split("&"))
@@ -193,7 +192,7 @@ def layout(params: BodyParams | None = None) -> BodyLayout:
     cone(v(0, 1.6, 0.03), v(0, 1.545, 0.062), 0.05 * s, 0.03 * s, "head")  # jaw
     cone(v(0, 1.645, 0.098), v(0, 1.612, 0.112), 0.013 * s, 0.014 * s, "head", blend=0.012)  # nose
     # arms: deltoid, upper arm, forearm, hand (flat mitt) and thumb
-    for side, sx in (("l", 1.0), ("r", -1.0)):
+    for side in ("l", "r"):
         sa, el, wr = J[f"upperarm_{side}"], J[f"lowerarm_{side}"], J[f"hand_{side}"]
         d = (wr - el) / np.linalg.norm(wr - el)
         cone(sa, sa, 0.056 * g * s, 0.0, f"upperarm_{side}", scale=(1.0, 1.0, 0.95))
@@ -210,7 +209,7 @@ def layout(params: BodyParams | None = None) -> BodyLayout:
         th1 = th0 + 0.05 * s * d + v(0, 0, 0.03)
         cone(th0, th1, 0.014 * s, 0.011 * s, f"hand_{side}", blend=0.015)
     # legs: thigh, calf (+ muscle), foot (heel to ball, flattened), toes
-    for side, sx in (("l", 1.0), ("r", -1.0)):
+    for side in ("l", "r"):
         hip, knee, ank, ball = (J[f"thigh_{side}"], J[f"calf_{side}"], J[f"foot_{side}"],
                                 J[f"ball_{side}"])
         cone(hip + v(0, 0.02, 0), knee, 0.088 * g * s, 0.054 * g * s, f"thigh_{side}")

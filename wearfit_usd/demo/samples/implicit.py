@@ -248,7 +248,7 @@ def resolve_ambiguous_faces(vals: np.ndarray, max_rounds: int = 6) -> int:
         for ax in range(3):
             b, c = (ax + 1) % 3, (ax + 2) % 3
 
-            def sl(db, dc):
+            def sl(db, dc, b=b, c=c, ins=ins):
                 s = [slice(None)] * 3
                 s[b] = slice(db, ins.shape[b] - 1 + db)
                 s[c] = slice(dc, ins.shape[c] - 1 + dc)
@@ -333,7 +333,7 @@ def surface_nets(values: np.ndarray, origin: np.ndarray, h: float):
             continue
         out_dir = a_in[tuple(e.T)]  # inside -> outside along +ax: normal +ax
 
-        def cell(db, dc):
+        def cell(db, dc, e=e, b_ax=b_ax, c_ax=c_ax):
             c = e.copy()
             c[:, b_ax] += db
             c[:, c_ax] += dc

@@ -19,9 +19,9 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
-from ...model import Character, Mesh, Primvar
 from ...geometry.closest import vertex_normals
 from ...io.usd import triangulate
+from ...model import Character, Mesh, Primvar
 from .body import JOINT_NAMES, body_params, layout
 from .implicit import Solid, relax_on_surface
 
