@@ -132,16 +132,19 @@ def task_fit(reference, target, cache_root: str, key: str, resume: bool):
 
 
 _PLANS: dict = {}
+PLANS_KEPT = 2  # plans a worker keeps (the most recently used): a plan of a MakeHuman outfit is ~50-100 MB
 
 
 def _plan_of(reference, key: str, k: int):
     """The dressing plan of ``reference``, built once per worker process
-    (keyed by the reference's content and the options)."""
+    (keyed by the reference's content and the options); returns (plan, built)."""
     from ..dress.plan import plan
-    if key not in _PLANS:
-        _PLANS[key] = plan(reference, k=k)
-        return _PLANS[key], True
-    return _PLANS[key], False
+    built = key not in _PLANS
+    p = plan(reference, k=k) if built else _PLANS.pop(key)
+    _PLANS[key] = p  # most recent last
+    while len(_PLANS) > PLANS_KEPT:
+        _PLANS.pop(next(iter(_PLANS)))
+    return p, built
 
 
 def _record(meta: dict, task: _Task, obj: Path, figures: dict, **extra) -> dict:

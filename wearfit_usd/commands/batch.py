@@ -1,6 +1,7 @@
 """`wearfit batch JOBS -o OUTDIR`: references x targets x clips on Dask."""
 from __future__ import annotations
 
+import importlib.util
 import os
 import sys
 from pathlib import Path
@@ -42,9 +43,21 @@ def _client(args):
         except OSError as exc:
             raise InputError(None, f"cannot reach the Dask scheduler {args.scheduler}: {exc}") from None
     n = args.workers or os.cpu_count() or 1
-    cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
+    # Dask's dashboard needs bokeh: started (on a free port) only when it is installed
+    dashboard = ":0" if importlib.util.find_spec("bokeh") is not None else None
+    cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=dashboard,
                            silence_logs=logging.ERROR)
     return Client(cluster), cluster
+
+
+def _dashboard(client) -> str | None:
+    """The dashboard's address when the scheduler serves one."""
+    try:
+        if "dashboard" not in client.scheduler_info().get("services", {}):
+            return None
+        return client.dashboard_link
+    except (AttributeError, KeyError, OSError):
+        return None
 
 
 def run(args) -> int:
@@ -61,8 +74,9 @@ def run(args) -> int:
     client, cluster = _client(args)
     try:
         n_workers = len(client.scheduler_info().get("workers", {}))
+        dashboard = _dashboard(client)
         info(f"batch: {len(jobset.jobs)} jobs on {n_workers} worker(s) at {client.scheduler.address}"
-             + (f"; dashboard {client.dashboard_link}" if client.dashboard_link else ""))
+             + (f"; dashboard {dashboard}" if dashboard else ""))
         bar = None
         if verbosity() >= 1:
             from ..progress import progress
@@ -82,7 +96,7 @@ def run(args) -> int:
             bar.close()
         summ = write_report(result.records, out, result.seconds, jobset.source,
                             {"scheduler": client.scheduler.address, "workers": n_workers,
-                             "dashboard": client.dashboard_link, "local": cluster is not None})
+                             "dashboard": dashboard, "local": cluster is not None})
     finally:
         client.close()
         if cluster is not None:
