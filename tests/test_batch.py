@@ -7,7 +7,6 @@ import os
 import socket
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -79,7 +78,8 @@ def test_csv_rows(tmp_path):
     ("bad.json", '{"references": ["a.usda"], "targets": ["b.usdc"],,}', "invalid JSON"),
     ("bad.yaml", "references: [a.usda\ntargets: b", "invalid YAML"),
     ("bad.json", '{"references": ["a.usda"], "targets": ["b.usdc"], "products": ["gltf"]}', "unknown products"),
-    ("bad.json", '{"references": ["a.usda"], "targets": ["b.usdc"], "products": ["animate"]}', "needs at least one clip"),
+    ("bad.json", '{"references": ["a.usda"], "targets": ["b.usdc"], "products": ["animate"]}',
+     "needs at least one clip"),
     ("bad.json", '{"references": [], "targets": ["b.usdc"]}', "'references' must be a non-empty list"),
     ("bad.json", '{"references": ["a.usda"]}', "no targets"),
     ("bad.json", '{"refs": ["a.usda"]}', "unknown keys ['refs']"),

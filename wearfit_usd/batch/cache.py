@@ -11,6 +11,7 @@ import functools
 import hashlib
 import json
 import os
+import shutil
 import tempfile
 from pathlib import Path
 
@@ -101,7 +102,6 @@ class Cache:
 def publish(src, dest) -> Path:
     """Place a cached object at its output path (a hard link when possible,
     else a copy), atomically replacing what was there."""
-    import shutil
     src, dest = Path(src), Path(dest)
     dest.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{dest.name}.", dir=str(dest.parent))

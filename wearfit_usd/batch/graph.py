@@ -26,12 +26,26 @@ from __future__ import annotations
 
 import os
 import pickle
+import resource
 import time
 import uuid
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
+from ..animate.try_on import AnimateOptions, animate
+from ..commands.fit import fitted_character
+from ..dress.apply import dress
+from ..dress.metrics import dress_report
+from ..dress.plan import plan
+from ..errors import InputError
+from ..fit.body_fit import fit_character
+from ..io.bvh import read_bvh
+from ..io.usd import read_character, write_character
+from ..progress import set_verbosity
+from ..render.media import write_png
 from .cache import Cache, atomic_write_bytes, file_digest, publish, result_key
 from .jobs import Job, JobSet
 
@@ -46,7 +60,6 @@ class JobError(RuntimeError):
 # worker side
 
 def _quiet_worker() -> None:
-    from ..progress import set_verbosity
     set_verbosity(0)
     os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
 
@@ -71,7 +84,6 @@ def _peak_rss_mb() -> float:
                     return int(line.split()[1]) / 1024.0
     except OSError:
         pass
-    import resource
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
@@ -90,10 +102,12 @@ class _Task:
         self._caught = self._w.__enter__()
         warnings.simplefilter("always")
         self.t0 = time.perf_counter()
+        self.cpu0 = time.process_time()
         return self
 
     def __exit__(self, kind, exc, tb):
         self.seconds = time.perf_counter() - self.t0
+        self.cpu_seconds = time.process_time() - self.cpu0
         self.peak_rss_mb = _peak_rss_mb()
         self._w.__exit__(None, None, None)
         self.warnings = list(dict.fromkeys(str(w.message) for w in self._caught))
@@ -102,13 +116,13 @@ class _Task:
         return False
 
     def stats(self) -> dict:
-        return {"seconds": round(self.seconds, 3), "peak_rss_mb": round(self.peak_rss_mb, 1),
+        return {"seconds": round(self.seconds, 3), "cpu_seconds": round(self.cpu_seconds, 3),
+                "peak_rss_mb": round(self.peak_rss_mb, 1),
                 "warnings": self.warnings, "worker_pid": os.getpid()}
 
 
 def task_read(path: str, role: str):
     """Read one USD stage (a reference with its skeleton, a target with or without)."""
-    from ..io.usd import read_character
     with _Task(f"reading {role} {path}"):
         if not Path(path).exists():
             raise JobError(f"{path}: file not found")
@@ -118,7 +132,6 @@ def task_read(path: str, role: str):
 def task_fit(reference, target, cache_root: str, key: str, resume: bool):
     """The reference body fitted onto the target (a :class:`FitResult`),
     loaded from the cache when ``resume`` and stored there."""
-    from ..fit.body_fit import fit_character
     obj = Cache(cache_root).object_path(key, ".fit.pkl")
     with _Task(f"fitting {Path(reference.source).name} onto {target.source}"):
         if resume and obj.exists():
@@ -138,7 +151,6 @@ PLANS_KEPT = 2  # plans a worker keeps (the most recently used): a plan of a Mak
 def _plan_of(reference, key: str, k: int):
     """The dressing plan of ``reference``, built once per worker process
     (keyed by the reference's content and the options); returns (plan, built)."""
-    from ..dress.plan import plan
     built = key not in _PLANS
     p = plan(reference, k=k) if built else _PLANS.pop(key)
     _PLANS[key] = p  # most recent last
@@ -155,8 +167,6 @@ def _record(meta: dict, task: _Task, obj: Path, figures: dict, **extra) -> dict:
 
 def task_fit_product(reference, target, fit, meta: dict) -> dict:
     """Write the fitted body (as ``wearfit fit``)."""
-    from ..commands.fit import fitted_character
-    from ..io.usd import write_character
     obj = Cache(meta["cache_root"]).object_path(meta["key"], meta["suffix"])
     with _Task(f"writing the fitted body of {meta['id']}") as t:
         char = fitted_character(reference, target, fit)
@@ -173,12 +183,6 @@ def task_fit_product(reference, target, fit, meta: dict) -> dict:
 def task_dress(reference, target, fit, plan_key: str, meta: dict) -> dict:
     """Dress the target with the reference's items (as ``wearfit dress``),
     on the shared fit and this worker's plan of the reference."""
-    import numpy as np
-
-    from ..dress.apply import dress
-    from ..dress.metrics import dress_report
-    from ..errors import InputError
-    from ..io.usd import write_character
     obj = Cache(meta["cache_root"]).object_path(meta["key"], meta["suffix"])
     with _Task(f"dressing {meta['id']}") as t:
         if not reference.items:
@@ -197,8 +201,6 @@ def task_dress(reference, target, fit, plan_key: str, meta: dict) -> dict:
 
 def task_animate(reference, target, meta: dict) -> dict:
     """One shot (as ``wearfit animate``), streamed to the cache."""
-    from ..animate.try_on import AnimateOptions, animate
-    from ..io.bvh import read_bvh
     obj = Cache(meta["cache_root"]).object_path(meta["key"], meta["suffix"])
     with _Task(f"animating {meta['id']}") as t:
         clip = meta["clip"]
@@ -218,8 +220,7 @@ def task_animate(reference, target, meta: dict) -> dict:
 
 def task_preview(dressed, meta: dict) -> dict:
     """A front view of the dressed target (a PNG)."""
-    from ..render.media import write_png
-    from ..render.preview import render_frames
+    from ..render.preview import render_frames  # pyrender/OpenGL: loaded by preview tasks only
     obj = Cache(meta["cache_root"]).object_path(meta["key"], ".png")
     src = dressed["object"] if isinstance(dressed, dict) else dressed
     with _Task(f"rendering {meta['id']}") as t:

@@ -7,6 +7,10 @@ import json
 from collections import Counter, defaultdict
 from pathlib import Path
 
+import numpy as np
+from PIL import Image
+
+from ..render.media import contact_sheet, write_png
 from .cache import atomic_write_bytes, code_version
 
 
@@ -50,10 +54,6 @@ def _main_figures(rec: dict) -> str:
 def contact_sheets(records: list[dict], outdir: Path) -> list[Path]:
     """One ``contact_<target>.png`` per target with a preview: its previews
     (one per reference) side by side."""
-    import numpy as np
-    from PIL import Image
-
-    from ..render.media import contact_sheet, write_png
     by_target = defaultdict(list)
     for r in records:
         if r["product"] == "preview" and r["status"] == "ok":
