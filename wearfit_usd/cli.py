@@ -21,7 +21,7 @@ from . import __version__
 from .errors import WearfitError
 from .progress import set_verbosity
 
-COMMANDS = ["inspect", "fit", "dress", "animate", "render", "demo"]
+COMMANDS = ["inspect", "fit", "dress", "animate", "render", "demo", "batch"]
 
 
 def common_options() -> argparse.ArgumentParser:

@@ -1,0 +1,1 @@
+"""Tests of wearfit_usd.batch."""

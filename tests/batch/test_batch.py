@@ -1,0 +1,293 @@
+"""`wearfit batch`: job files, cache keys, real runs on a local Dask cluster
+and on a scheduler with workers started as separate processes."""
+from __future__ import annotations
+
+import json
+import os
+import socket
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tests.conftest import BVH_DIR, REPO, USD_DIR
+from wearfit_usd.batch.cache import Cache, file_digest, result_key
+from wearfit_usd.batch.jobs import Clip, Job, load_jobs
+from wearfit_usd.errors import InputError
+
+# ---------------------------------------------------------------- job files
+
+
+def _write(tmp_path, name, text):
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+def test_json_cross_product_relative_paths(tmp_path):
+    job = _write(tmp_path, "jobs.json", json.dumps({
+        "references": ["ref_a.usda", "/abs/ref_b.usda"], "targets": ["bodies/b1.usdc", "b2.usdc"],
+        "clips": [{"path": "walk.bvh", "start": 1, "end": 61}, "run.bvh"], "products": ["dress", "animate"]}))
+    js = load_jobs(job)
+    assert len(js.jobs) == 2 * 2 * (1 + 2)
+    first = js.jobs[0]
+    assert first == Job("dress", tmp_path / "ref_a.usda", tmp_path / "bodies" / "b1.usdc")
+    anim = [j for j in js.jobs if j.product == "animate"]
+    assert anim[0].clip == Clip(tmp_path / "walk.bvh", 1, 61)
+    assert anim[1].clip == Clip(tmp_path / "run.bvh", 0, None)
+    assert {j.reference for j in js.jobs} == {tmp_path / "ref_a.usda", Path("/abs/ref_b.usda")}
+    assert anim[0].id == "animate/ref_a__b1__walk_1-61"
+    assert js.options["format"] == "usd"
+
+
+def test_yaml_per_reference_targets_and_explicit_rows(tmp_path):
+    job = _write(tmp_path, "jobs.yaml", """
+references:
+  - path: ref_f.usda
+    targets: [f1.usdc, f2.usdc]
+  - path: ref_m.usda
+    targets: [m1.usdc]
+products: [fit]
+options: {format: usdc, k: 4}
+""")
+    js = load_jobs(job)
+    assert [(j.reference.name, j.target.name) for j in js.jobs] == \
+        [("ref_f.usda", "f1.usdc"), ("ref_f.usda", "f2.usdc"), ("ref_m.usda", "m1.usdc")]
+    assert js.options["format"] == "usdc" and js.options["k"] == 4
+    rows = _write(tmp_path, "rows.yml", """
+jobs:
+  - {reference: r.usda, target: t.usdc, clip: {path: c.bvh, start: 2, end: 12}, products: [animate, dress]}
+  - {reference: r.usda, target: u.usdc}
+""")
+    js = load_jobs(rows)
+    assert [j.id for j in js.jobs] == ["animate/r__t__c_2-12", "dress/r__t", "dress/r__u"]
+
+
+def test_csv_rows(tmp_path):
+    job = _write(tmp_path, "jobs.csv", "reference,target,clip,start,end,products\n"
+                                       "r.usda,t.usdc,c.bvh,1,31,animate;dress\n"
+                                       "r.usda,u.usdc,,,,fit\n")
+    js = load_jobs(job)
+    assert [j.id for j in js.jobs] == ["animate/r__t__c_1-31", "dress/r__t", "fit/r__u"]
+    assert js.jobs[0].clip.path == tmp_path / "c.bvh"
+
+
+@pytest.mark.parametrize("name,text,problem", [
+    ("bad.json", '{"references": ["a.usda"], "targets": ["b.usdc"],,}', "invalid JSON"),
+    ("bad.yaml", "references: [a.usda\ntargets: b", "invalid YAML"),
+    ("bad.json", '{"references": ["a.usda"], "targets": ["b.usdc"], "products": ["gltf"]}', "unknown products"),
+    ("bad.json", '{"references": ["a.usda"], "targets": ["b.usdc"], "products": ["animate"]}',
+     "needs at least one clip"),
+    ("bad.json", '{"references": [], "targets": ["b.usdc"]}', "'references' must be a non-empty list"),
+    ("bad.json", '{"references": ["a.usda"]}', "no targets"),
+    ("bad.json", '{"refs": ["a.usda"]}', "unknown keys ['refs']"),
+    ("bad.json", '{"references": ["a.usda"], "targets": ["b"], "clips": [{"path": "c.bvh", "start": "x"}]}',
+     "clips[0].start must be an integer"),
+    ("bad.json", '{"references": ["a.usda"], "targets": ["b"], "clips": [{"path": "c.bvh", "start": 5, "end": 5}]}',
+     "is empty"),
+    ("bad.json", '{"references": ["a.usda"], "targets": ["b"], "options": {"format": "obj"}}', "options.format"),
+    ("bad.csv", "reference,clip\nr.usda,c.bvh\n", "lacks the columns ['target']"),
+    ("bad.txt", "{}", "ends in .json"),
+])
+def test_job_file_errors_name_file_and_problem(tmp_path, name, text, problem):
+    job = _write(tmp_path, name, text)
+    with pytest.raises(InputError) as err:
+        load_jobs(job)
+    assert str(job) in str(err.value)
+    assert problem in str(err.value)
+
+
+def test_missing_job_file(tmp_path):
+    with pytest.raises(InputError, match="job file not found"):
+        load_jobs(tmp_path / "nope.json")
+
+
+# ---------------------------------------------------------------- cache keys
+
+
+def test_cache_keys_follow_input_bytes_and_options(tmp_path):
+    a, b = tmp_path / "a.usda", tmp_path / "b.usdc"
+    a.write_bytes(b"reference")
+    b.write_bytes(b"target")
+    k0 = result_key("dress", [file_digest(a), file_digest(b)], {"k": 5})
+    assert result_key("dress", [file_digest(a), file_digest(b)], {"k": 5}) == k0
+    os.utime(b, (1, 1))  # a touch alone: same bytes, same key
+    assert result_key("dress", [file_digest(a), file_digest(b)], {"k": 5}) == k0
+    assert result_key("dress", [file_digest(a), file_digest(b)], {"k": 4}) != k0
+    assert result_key("fit", [file_digest(a), file_digest(b)], {"k": 5}) != k0
+    b.write_bytes(b"target!")
+    assert result_key("dress", [file_digest(a), file_digest(b)], {"k": 5}) != k0
+    assert result_key("dress", [file_digest(b), file_digest(a)], {"k": 5}) != \
+        result_key("dress", [file_digest(a), file_digest(b)], {"k": 5})
+
+
+def test_cache_lookup_needs_record_and_object(tmp_path):
+    c = Cache(tmp_path / ".cache")
+    key = "ab" * 32
+    assert c.lookup(key) is None
+    obj = c.object_path(key, ".usd")
+    c.store_record(key, {"object": str(obj)})
+    assert c.lookup(key) is None  # a record without its object is no result
+    obj.write_bytes(b"x")
+    assert c.lookup(key)["object"] == str(obj)
+
+
+# ---------------------------------------------------------------- real runs
+
+
+def usd_points(path) -> dict:
+    """Every point-array value of a stage at every time sample, as bytes."""
+    from pxr import Usd
+    stage = Usd.Stage.Open(str(path))
+    out = {}
+    for prim in stage.Traverse():
+        for attr in prim.GetAttributes():
+            if "GfVec3f" not in attr.GetTypeName().cppTypeName:
+                continue
+            for t in attr.GetTimeSamples() or [Usd.TimeCode.Default()]:
+                v = attr.Get(t)
+                if v is not None:
+                    out[str(prim.GetPath()), attr.GetName(), str(t)] = np.asarray(v).tobytes()
+    return out
+
+
+def _job_file(folder: Path) -> Path:
+    """1 reference x 2 targets x 1 clip of 10 frames, plus a broken body and a missing clip."""
+    broken = folder / "broken_body.usdc"
+    broken.write_bytes(b"PXR-USDC this is not a crate file")
+    ref = str(USD_DIR / "ref_female.usda")
+    clip = {"path": str(BVH_DIR / "cmu_07_01_walk.bvh"), "start": 1, "end": 41}
+    job = {"jobs": [
+        {"reference": ref, "target": str(USD_DIR / "body_female_thin.usdc"), "clip": clip,
+         "products": ["fit", "dress", "animate", "preview"]},
+        {"reference": ref, "target": str(USD_DIR / "body_female_short.usdc"), "clip": clip,
+         "products": ["dress", "animate"]},
+        {"reference": ref, "target": "broken_body.usdc", "products": ["dress"]},
+        {"reference": ref, "target": str(USD_DIR / "body_female_thin.usdc"),
+         "clip": {"path": "missing_clip.bvh", "start": 1, "end": 41}, "products": ["animate"]},
+    ]}
+    path = folder / "jobs.json"
+    path.write_text(json.dumps(job))
+    return path
+
+
+def _wearfit(*args, timeout=600):
+    env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    return subprocess.run([sys.executable, "-m", "wearfit_usd", *args], capture_output=True, text=True,
+                          env=env, timeout=timeout)
+
+
+@pytest.fixture(scope="module")
+def local_run(tmp_path_factory):
+    """The job file run on the default local cluster with 2 worker processes."""
+    folder = tmp_path_factory.mktemp("batch")
+    job = _job_file(folder)
+    r = _wearfit("batch", "-q", str(job), "-o", str(folder / "out"), "--workers", "2")
+    return job, folder / "out", r
+
+
+@pytest.mark.slow
+def test_local_cluster_run(local_run):
+    job, out, r = local_run
+    assert r.returncode == 1, r.stderr  # two jobs fail on purpose
+    rep = json.loads((out / "report.json").read_text())
+    jobs = {j["id"]: j for j in rep["jobs"]}
+    ok = [i for i, j in jobs.items() if j["status"] == "ok"]
+    assert sorted(ok) == sorted(["fit/ref_female__body_female_thin", "dress/ref_female__body_female_thin",
+                                 "animate/ref_female__body_female_thin__cmu_07_01_walk_1-41",
+                                 "preview/ref_female__body_female_thin", "dress/ref_female__body_female_short",
+                                 "animate/ref_female__body_female_short__cmu_07_01_walk_1-41"])
+    for i in ok:
+        assert Path(jobs[i]["output"]).is_file()
+        assert jobs[i]["cache"] == "miss" and jobs[i]["peak_rss_mb"] > 50 and jobs[i]["seconds"] >= 0
+    shot = usd_points(jobs["animate/ref_female__body_female_thin__cmu_07_01_walk_1-41"]["output"])
+    assert len({k[2] for k in shot}) >= 10  # 10 frames of time samples
+    assert jobs["dress/ref_female__body_female_thin"]["figures"]["items"]
+    assert (out / "contact_body_female_thin.png").is_file() and (out / "report.md").is_file()
+    assert rep["summary"]["ok"] == 6 and rep["summary"]["failed"] == 2
+
+
+@pytest.mark.slow
+def test_failures_are_isolated_with_their_message(local_run):
+    job, out, r = local_run
+    rep = json.loads((out / "report.json").read_text())
+    jobs = {j["id"]: j for j in rep["jobs"]}
+    broken = jobs["dress/ref_female__broken_body"]
+    assert broken["status"] == "failed" and "broken_body.usdc" in broken["error"]
+    missing = jobs["animate/ref_female__body_female_thin__missing_clip_1-41"]
+    assert missing["status"] == "failed" and "missing_clip.bvh: file not found" in missing["error"]
+    assert "broken_body" in r.stderr and "missing_clip.bvh" in r.stderr
+    assert "## Failures" in (out / "report.md").read_text()
+
+
+@pytest.mark.slow
+def test_resume_reuses_every_result(local_run):
+    job, out, _ = local_run
+    before = {j["id"]: j for j in json.loads((out / "report.json").read_text())["jobs"]}
+    r = _wearfit("batch", "-q", str(job), "-o", str(out), "--workers", "1", "--resume", "--no-previews")
+    assert r.returncode == 1, r.stderr
+    jobs = {j["id"]: j for j in json.loads((out / "report.json").read_text())["jobs"]}
+    hits = sorted(i for i, j in jobs.items() if j["cache"] == "hit")
+    assert hits == sorted(i for i, j in before.items() if j["status"] == "ok" and j["product"] != "preview")
+    assert all(jobs[i]["status"] == "failed" for i in jobs if i not in hits)
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _stop(procs):
+    for p in procs:
+        if p.poll() is None:
+            p.terminate()
+    for p in procs:
+        try:
+            p.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait(timeout=10)
+
+
+@pytest.mark.slow
+def test_separate_scheduler_and_workers_same_outputs(local_run, tmp_path):
+    """`dask scheduler` and two `dask worker` processes started here (on a
+    free port, always stopped): the same job file gives bitwise the same USD
+    points as on the local cluster."""
+    from distributed import Client
+    job, local_out, _ = local_run
+    port = _free_port()
+    address = f"tcp://127.0.0.1:{port}"
+    env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    logs = open(tmp_path / "dask.log", "w")
+    procs = [subprocess.Popen([sys.executable, "-m", "dask", "scheduler", "--host", "127.0.0.1",
+                               "--port", str(port), "--no-dashboard"], env=env, stdout=logs, stderr=logs)]
+    try:
+        for _ in range(2):
+            procs.append(subprocess.Popen([sys.executable, "-m", "dask", "worker", address,
+                                           "--nthreads", "1", "--nworkers", "1", "--no-dashboard"],
+                                          env=env, cwd=tmp_path, stdout=logs, stderr=logs))
+        with Client(address, timeout="60s") as c:
+            c.wait_for_workers(2, timeout=120)
+        r = _wearfit("batch", "-q", str(job), "-o", str(tmp_path / "out"), "--scheduler", address)
+        assert r.returncode == 1, r.stderr
+    finally:
+        _stop(procs[1:] + procs[:1])
+        logs.close()
+    rep = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert rep["cluster"]["workers"] == 2 and rep["cluster"]["local"] is False
+    assert len({j["worker_pid"] for j in rep["jobs"] if j["status"] == "ok"}) == 2
+    local = {j["id"]: j for j in json.loads((local_out / "report.json").read_text())["jobs"]}
+    compared = 0
+    for j in rep["jobs"]:
+        if j["id"] not in local:  # the previews, left out by the --resume run
+            continue
+        assert j["status"] == local[j["id"]]["status"]
+        if j["status"] == "ok" and j["product"] != "preview":
+            a, b = usd_points(j["output"]), usd_points(local[j["id"]]["output"])
+            assert a.keys() == b.keys() and a == b, j["id"]
+            compared += 1
+    assert compared == 5
