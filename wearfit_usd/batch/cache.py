@@ -12,10 +12,10 @@ import hashlib
 import json
 import os
 import shutil
-import tempfile
 from pathlib import Path
 
 from .. import __version__
+from ..io.atomic import atomic_output
 
 _PACKAGE = Path(__file__).resolve().parents[1]
 
@@ -49,19 +49,11 @@ def result_key(kind: str, digests: list[str], options: dict) -> str:
 
 
 def atomic_write_bytes(dest, data: bytes) -> Path:
-    """Write ``data`` beside ``dest`` and rename it into place."""
-    dest = Path(dest)
-    dest.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{dest.name}.", dir=str(dest.parent))
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        os.replace(tmp, dest)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return dest
+    """Write ``data`` beside ``dest`` and rename it into place
+    (:func:`~wearfit_usd.io.atomic.atomic_output`)."""
+    with atomic_output(dest) as tmp:
+        Path(tmp).write_bytes(data)
+    return Path(dest)
 
 
 class Cache:
@@ -102,19 +94,9 @@ class Cache:
 def publish(src, dest) -> Path:
     """Place a cached object at its output path (a hard link when possible,
     else a copy), atomically replacing what was there."""
-    src, dest = Path(src), Path(dest)
-    dest.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{dest.name}.", dir=str(dest.parent))
-    os.close(fd)
-    os.unlink(tmp)
-    try:
+    with atomic_output(dest) as tmp:
         try:
             os.link(src, tmp)
         except OSError:
             shutil.copyfile(src, tmp)
-        os.replace(tmp, dest)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return dest
+    return Path(dest)
