@@ -198,6 +198,7 @@ def test_item_shapes(ref, items):
     assert sh[:, 1].max() < 0.15 and (sh[:, 0] > 0).any() and (sh[:, 0] < 0).any()
 
 
+@pytest.mark.slow  # writes and re-reads the whole sample set (5 s)
 def test_sample_set_round_trips_through_usd(tmp_path):
     from wearfit_usd.io.usd import read_character
     paths = write_sample_set(tmp_path, targets=["tall_thin", "curvy_remeshed"])
