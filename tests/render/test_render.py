@@ -503,3 +503,24 @@ def test_tight_items_drawn_proud_of_the_skin(usd_dir):
 
     assert skin_pixels(proud) < 0.7 * skin_pixels(exact)
     assert skin_pixels(proud) > 500  # face, arms and hands still show
+
+
+def test_interrupted_write_leaves_no_folder_it_made(tmp_path, monkeypatch):
+    """A write stopped part way (Ctrl-C, SIGTERM, a full disk) removes its
+    temporary frames and the output folder it created, and keeps a folder
+    that was there before."""
+    from wearfit_usd.render import media
+
+    def fail(*args, **kwargs):
+        raise KeyboardInterrupt
+    monkeypatch.setattr(media, "write_png", fail)
+    images = [np.zeros((8, 8, 3), np.uint8)] * 3
+    out = tmp_path / "new_dir"
+    with pytest.raises(KeyboardInterrupt):
+        media.write_outputs(images, out)
+    assert not out.exists()
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "notes.txt").write_text("kept")
+    with pytest.raises(KeyboardInterrupt):
+        media.write_outputs(images, tmp_path / "mine")
+    assert sorted(p.name for p in (tmp_path / "mine").iterdir()) == ["notes.txt"]

@@ -594,7 +594,8 @@ def read_bvh(path, scale: float | None = None) -> BVHMotion:
         allp = np.concatenate([pos, ends_file]) @ c3
         height_units = float(np.ptp(allp[:, 1])) if len(allp) else 0.0
     if scale is None and not dialect.startswith("cmu"):
-        scale, units = choose_unit(standing_height(parents, allp))
+        with np.errstate(over="ignore", invalid="ignore"):  # extreme offsets: refused below
+            scale, units = choose_unit(standing_height(parents, allp))
     elif scale is None:
         scale, units = _detect_scale(height_units, dialect)
     else:

@@ -110,6 +110,7 @@ def write_outputs(images: list[np.ndarray], out_dir, fps: float = 24.0, gif: boo
     Returns {"frames": [paths], "contact_sheet": path, "gif": path, "mp4": path}."""
     from PIL import Image
     out = Path(out_dir)
+    made = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
     temps: list[tuple[Path, Path]] = []
     result: dict = {"frames": []}
@@ -131,6 +132,8 @@ def write_outputs(images: list[np.ndarray], out_dir, fps: float = 24.0, gif: boo
         for k in ("contact_sheet", "gif", "mp4"):
             if k in result:
                 Path(result[k]).unlink(missing_ok=True)
+        if made and not any(out.iterdir()):
+            out.rmdir()  # a folder this call made and left empty (Ctrl-C, SIGTERM, a write error)
         raise
     for tmp, dest in temps:
         os.replace(tmp, dest)
