@@ -333,7 +333,6 @@ def stage_units(stage, path) -> tuple[str, float]:
         raise USDInputError(path, f"upAxis must be Y or Z, got {up!r}")
     missing = [k for k in ("upAxis", "metersPerUnit") if not stage.HasAuthoredMetadata(k)]
     if missing:
-        from ..progress import warn
         subs = stage.GetRootLayer().subLayerPaths
         note = " (its sublayers' stage metadata does not count in USD)" if len(subs) else ""
         warn(f"{path}: the root layer sets no {' or '.join(missing)}{note}; assuming "
