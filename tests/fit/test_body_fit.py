@@ -142,10 +142,15 @@ def test_closed_pocket_collapses_without_flips():
     assert d["fit_to_target_mean_mm"] <= 0.5 and d["fit_to_target_p99_mm"] <= 2.0
     assert d["fit_to_target_surface_p99_mm"] <= 5.0
     assert d["target_to_fit_surface_p99_mm"] <= 5.0
-    # without the collapse the pocket stays centimetres under the surface
+    # without the collapse (and with the backward term's reach cut to the
+    # forward one's) the pocket stays centimetres under the surface
     off = fit_body(src * 0.1, sf, (tgt @ rot) * 0.1, tf,
-                   options=dict(opts, collapse_iterations=0)).diagnostics
+                   options=dict(opts, collapse_iterations=0, backward_reach=1.0)).diagnostics
     assert off["fit_to_target_p99_mm"] > 10.0 and off["fit_to_target_surface_p99_mm"] > 10.0
+    # the far-reaching backward term alone already pulls most of it out
+    reach = fit_body(src * 0.1, sf, (tgt @ rot) * 0.1, tf,
+                     options=dict(opts, collapse_iterations=0)).diagnostics
+    assert reach["fit_to_target_p99_mm"] < 0.5 * off["fit_to_target_p99_mm"]
 
 
 def test_posed_target_pose_step_helps(ref_male, posed):
@@ -235,3 +240,20 @@ def test_cli_missing_file_exit_2(tmp_path, usd_dir, capsys):
     assert rc == 2
     assert "missing.usdc: file not found" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_low_poly_target_is_covered_both_ways():
+    # reference: a fine sphere; target: a box of 12 triangles (a low-poly
+    # figure's head). Target vertices alone (8 corners) leave the box faces
+    # without any backward pull; its surface samples cover them.
+    src, sf = _sphere(4)
+    c = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float) * 0.8
+    cf = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+                   [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])
+    opts = {"same_topology_shortcut": False}
+    new = fit_body(src * 0.1, sf, c * 0.1, cf, options=opts).diagnostics
+    old = fit_body(src * 0.1, sf, c * 0.1, cf,
+                   options=dict(opts, backward_samples=0, backward_reach=1.0)).diagnostics
+    assert new["backward_samples"] == len(src) - 8
+    assert new["target_to_fit_surface_mean_mm"] < 0.7 * old["target_to_fit_surface_mean_mm"]
+    assert new["target_to_fit_surface_p99_mm"] < old["target_to_fit_surface_p99_mm"]

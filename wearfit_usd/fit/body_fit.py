@@ -53,7 +53,7 @@ from ..motion.skinning import skin_points
 from ..transforms import rotation_part
 from ..types import Faces, JointIndices, Mask, Points, Weights
 from . import pose_align as pa
-from .measures import SurfaceIndex, chamfer, count_flipped, triangle_normals
+from .measures import SurfaceIndex, chamfer, count_flipped, surface_samples, triangle_normals
 from .pockets import collapse_pockets
 
 # --------------------------------------------------------------------------
@@ -70,12 +70,16 @@ class FitOptions:
     """
     pose_align: bool = True            # skeleton-driven posing (step 1)
     stretch_bones: bool = True         # stretch limbs to the target bone lengths
+    refine_ends: bool = True           # turn feet, hands, heads onto the target's (needs its weights)
     same_topology_shortcut: bool = True
     w_smooth: float = 1.0
     w_identity: float = 0.01
     levels: tuple = ((0.02, 0.06), (0.1, 0.04), (0.5, 0.025), (2.5, 0.015), (12.0, 0.01))
     iterations_per_level: int = 2
     backward_weight: float = 1.0       # target -> reference correspondences
+    backward_samples: int = -1         # area-uniform target samples added to its vertices
+                                       # (-1: up to the reference's vertex count)
+    backward_reach: float = 3.0        # backward distance threshold (x the level's)
     unmatched_weight: float = 1e-3     # pull of unmatched vertices to their place (x w_c)
     normal_angle_deg: float = 60.0     # max angle between matched normals
     near_any_normal: float = 0.0       # matches closer than this (x height) ignore normals
@@ -231,7 +235,9 @@ class _Deformation:
 def _correspondence_targets(x: np.ndarray, faces: np.ndarray, target: SurfaceIndex,
                             target_points: np.ndarray, target_normals: np.ndarray,
                             max_dist: float, cos_normal: float, backward_weight: float,
-                            k: int, near_any: float = 0.0, frozen: np.ndarray | None = None):
+                            k: int, near_any: float = 0.0, frozen: np.ndarray | None = None,
+                            target_weights: np.ndarray | None = None,
+                            backward_dist: float | None = None):
     """Per source vertex, where the closest-point terms pull it.
 
     Forward: each vertex to its closest target surface point (valid when
@@ -254,8 +260,9 @@ def _correspondence_targets(x: np.ndarray, faces: np.ndarray, target: SurfaceInd
     if backward_weight > 0:
         src = SurfaceIndex(x, faces, k=k)
         bw = src.query(target_points, fast=True)
-        ok_b = (bw["distance"] < max_dist) & (np.einsum("ij,ij->i", target_normals, bw["normal"])
-                                               > cos_normal)
+        bdist = max_dist if backward_dist is None else backward_dist
+        ok_b = (bw["distance"] < bdist) & (np.einsum("ij,ij->i", target_normals, bw["normal"])
+                                            > cos_normal)
         if frozen is not None:
             ok_b &= ~frozen[src.faces[bw["face_local"]]].any(axis=1)
         nb = int(ok_b.sum())
@@ -263,6 +270,8 @@ def _correspondence_targets(x: np.ndarray, faces: np.ndarray, target: SurfaceInd
         disp = (target_points - bw["points"])[ok_b]
         fv = src.faces[bw["face_local"][ok_b]]  # (M, 3) source vertices
         bb = bw["bary"][ok_b] * scale
+        if target_weights is not None:
+            bb = bb * target_weights[ok_b, None]
         idx = fv.ravel()
         wts = bb.ravel()
         den += np.bincount(idx, wts, minlength=n)
@@ -272,6 +281,24 @@ def _correspondence_targets(x: np.ndarray, faces: np.ndarray, target: SurfaceInd
     goal = x.copy()
     goal[has] += num[has] / den[has, None]
     return goal, has, int(ok_f.sum()), nb
+
+
+def _backward_set(tgt: SurfaceIndex, count: int):
+    """The target points of the backward (target -> fit) term: the target's
+    vertices plus ``count`` area-uniform samples of its surface, so that a
+    low-poly target (a box head: 8 corners) pulls over its whole area.
+
+    Returns points (M, 3), unit normals (M, 3) and weights (M,) (mean 1):
+    each vertex weighs a third of its triangles' area, each sample an equal
+    share of the area; the two halves weigh the same in total.
+    """
+    area = 0.5 * np.linalg.norm(triangle_normals(tgt.points, tgt.faces), axis=1)
+    va = np.bincount(tgt.faces.ravel(), np.repeat(area / 3.0, 3), minlength=len(tgt.points))
+    s = surface_samples(tgt.points, tgt.faces, count)
+    sn = tgt.query(s)["normal"]
+    w = np.concatenate([va / max(va.sum(), 1e-30), np.full(count, 1.0 / count)])
+    w *= len(w) / w.sum()
+    return np.concatenate([tgt.points, s]), np.concatenate([tgt.vertex_normals, sn]), w
 
 
 def _register(src_points, src_faces, valid, target: SurfaceIndex, opts: FitOptions,
@@ -288,6 +315,13 @@ def _register(src_points, src_faces, valid, target: SurfaceIndex, opts: FitOptio
     TP = (target.points - centre) / h
     tgt = SurfaceIndex(TP, target.faces, k=opts.candidates)
     tgt_normals = tgt.vertex_normals
+    BP, b_normals, b_weights = TP, tgt_normals, None
+    n_samples = opts.backward_samples
+    if n_samples < 0:  # a target sparser than the reference: top up its vertices
+        n_samples = max(0, len(P) - len(TP))
+    diag["backward_samples"] = int(n_samples)
+    if n_samples > 0:
+        BP, b_normals, b_weights = _backward_set(tgt, n_samples)
     deform = _Deformation(P, src_faces, valid, opts.w_smooth, opts.w_identity)
     solver = SPDSolver(opts.solver)
     diag["solver"] = solver.name
@@ -303,8 +337,9 @@ def _register(src_points, src_faces, valid, target: SurfaceIndex, opts: FitOptio
         for it in range(opts.iterations_per_level):
             tc = time.perf_counter()
             goal, has, nf, nb = _correspondence_targets(
-                x[:n], faces_valid, tgt, TP, tgt_normals, dist * height / h, cos_n,
-                opts.backward_weight, opts.candidates, near_any=opts.near_any_normal * height / h)
+                x[:n], faces_valid, tgt, BP, b_normals, dist * height / h, cos_n,
+                opts.backward_weight, opts.candidates, near_any=opts.near_any_normal * height / h,
+                target_weights=b_weights, backward_dist=opts.backward_reach * dist * height / h)
             t_corr += time.perf_counter() - tc
             if it == 0:
                 # weights fixed for the level: matched vertices w_c, the others
@@ -337,9 +372,9 @@ def _register(src_points, src_faces, valid, target: SurfaceIndex, opts: FitOptio
         free |= grow
         tc = time.perf_counter()
         goal, has, nf, nb = _correspondence_targets(
-            x[:n], faces_valid, tgt, TP, tgt_normals, dist * height / h, cos_n,
+            x[:n], faces_valid, tgt, BP, b_normals, dist * height / h, cos_n,
             opts.backward_weight, opts.candidates, near_any=opts.near_any_normal * height / h,
-            frozen=free)
+            frozen=free, target_weights=b_weights, backward_dist=opts.backward_reach * dist * height / h)
         t_corr += time.perf_counter() - tc
         tf = time.perf_counter()
         wv = np.where(has & ~free, w_c, np.where(free, w_c * 1e-6, w_c * opts.unmatched_weight))
@@ -411,7 +446,8 @@ def _same_topology(ref_points, ref_faces, target_points, target_faces) -> bool:
 def fit_body(ref_points: Points, ref_faces: Faces, target_points: Points, target_faces: Faces, *,
              ref_skeleton=None, ref_joint_indices: JointIndices | None = None,
              ref_joint_weights: Weights | None = None, target_skeleton=None,
-             options=None) -> FitResult:
+             options=None, target_joint_indices: JointIndices | None = None,
+             target_joint_weights: Weights | None = None) -> FitResult:
     """Deform the reference body onto the target body.
 
     ref_points (N, 3), ref_faces (T, 3), target_points (M, 3), target_faces
@@ -461,6 +497,17 @@ def fit_body(ref_points: Points, ref_faces: Faces, target_points: Points, target
             posed = skin_points(ref_points, np.asarray(ref_joint_indices),
                                 np.asarray(ref_joint_weights), pose["skin"])
             joint_world = pose["world"]
+            if opts.refine_ends and target_joint_weights is not None:
+                joint_world, skin, turns = pa.refine_end_segments(
+                    posed, np.asarray(ref_joint_indices), np.asarray(ref_joint_weights),
+                    joint_world, pose["skin"], ref_skeleton.parents, target_points,
+                    np.asarray(target_joint_indices), np.asarray(target_joint_weights),
+                    target_skeleton.parents, pairs, target_faces=target_faces[tgt_valid])
+                if turns:
+                    posed = skin_points(ref_points, np.asarray(ref_joint_indices),
+                                        np.asarray(ref_joint_weights), skin)
+                    diag["turned_end_segments"] = {ref_skeleton.joint_names[j]: a
+                                                   for j, a in turns}
             diag["alignment"] = "pose"
         else:
             if opts.pose_align and not can_skin:
@@ -556,4 +603,5 @@ def fit_character(ref, target, options=None) -> FitResult:
     return fit_body(ref.body.points, ref.body.faces, target.body.points, target.body.faces,
                     ref_skeleton=ref.skeleton, ref_joint_indices=ref.body.joint_indices,
                     ref_joint_weights=ref.body.joint_weights, target_skeleton=target.skeleton,
-                    options=opts)
+                    options=opts, target_joint_indices=target.body.joint_indices,
+                    target_joint_weights=target.body.joint_weights)

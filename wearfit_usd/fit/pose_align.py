@@ -284,3 +284,133 @@ def pose_to_target(ref_bind: Matrices4, ref_parents: np.ndarray, target_bind: Ma
     world[:, 3, :3] = newP
     return {"skin": skin, "world": world, "similarity": sim, "n_pairs": int(mapped.sum()),
             "positions": newP}
+
+
+# --------------------------------------------------------------------------
+# end segments turned onto the target surface
+
+def _subtree(parents: np.ndarray, j: int) -> np.ndarray:
+    """(J,) bool: joint j and every joint below it (parents[k] < k)."""
+    inside = np.zeros(len(parents), bool)
+    inside[j] = True
+    for k in range(j + 1, len(parents)):
+        if parents[k] >= 0 and inside[parents[k]]:
+            inside[k] = True
+    return inside
+
+
+def _dominant(joint_indices: np.ndarray, joint_weights: np.ndarray) -> np.ndarray:
+    return joint_indices[np.arange(len(joint_indices)), np.argmax(joint_weights, axis=1)]
+
+
+def _turn_about(src: Points, dst: Points, centre: np.ndarray, iterations: int = 12):
+    """Rotation about ``centre`` taking point set src onto point set dst
+    (symmetric closest-point ICP, no correspondence given).
+
+    Returns ((3, 3) row-vector rotation, RMS before, RMS after)."""
+    tree_d = cKDTree(dst)
+    a0 = src - centre
+    rot = np.eye(3)
+
+    def rms(r):
+        moved = a0 @ r + centre
+        d1, _ = tree_d.query(moved)
+        d2, _ = cKDTree(moved).query(dst)
+        return float(np.sqrt(0.5 * (np.mean(d1 ** 2) + np.mean(d2 ** 2))))
+
+    before = rms(rot)
+    for _ in range(iterations):
+        moved = a0 @ rot + centre
+        _, i_f = tree_d.query(moved)
+        _, i_b = cKDTree(moved).query(dst)
+        a = np.concatenate([a0, a0[i_b]])
+        b = np.concatenate([dst[i_f], dst]) - centre
+        rot = best_rotation(a.T @ b)[0]
+    return rot, before, rms(rot)
+
+
+def refine_end_segments(posed: Points, joint_indices: np.ndarray, joint_weights: np.ndarray,
+                        world: Matrices4, skin: Matrices4, ref_parents: np.ndarray,
+                        target_points: Points, target_joint_indices: np.ndarray,
+                        target_joint_weights: np.ndarray, target_parents: np.ndarray,
+                        pairs: list[tuple[int, int]], target_faces: np.ndarray | None = None,
+                        min_gain: float = 0.3, min_fraction: float = 0.03,
+                        max_angle_deg: float = 45.0,
+                        min_angle_deg: float = 8.0, sample: int = 1500) -> tuple[Matrices4, Matrices4, list]:
+    """Turn end segments (feet with their toes, hands, heads) about their
+    mapped joint so their surface lies on the target's matching segment.
+
+    Bones give a segment's position but not always its direction: a toe
+    joint placed under the ankle (a low-poly figure's foot bone points
+    into the floor) turns a posed foot down by tens of degrees, out of reach
+    of the non-rigid step's closest points. For every mapped joint whose
+    mapped descendants (if any) are all leaves, the reference vertices
+    skinned mostly by its subtree are matched to the target vertices skinned
+    mostly by the mapped target joint's subtree by a rotation about the
+    posed joint (symmetric ICP). The turn is kept only when it lowers the
+    RMS distance by more than ``min_gain`` (a fraction) and exceeds
+    ``min_angle_deg``: where the pose step already agrees (the MakeHuman
+    bodies) nothing changes.
+
+    posed (N, 3) posed reference points; joint_indices/joint_weights (N, K);
+    world, skin (J, 4, 4) posed joint transforms and skinning matrices from
+    :func:`pose_to_target`; target_points (M, 3) with (M, K') influences.
+    Returns (world, skin, [(ref joint, degrees)] of the turns made).
+    """
+    world = world.copy()
+    skin = skin.copy()
+    posed = np.array(posed, dtype=float)
+    n = len(ref_parents)
+    mapping = np.full(n, -1)
+    for i, j in pairs:
+        mapping[i] = j
+    children = [[] for _ in range(n)]
+    for j, p in enumerate(ref_parents):
+        if p >= 0:
+            children[p].append(j)
+    dom_r = _dominant(joint_indices, joint_weights)
+    dom_t = _dominant(target_joint_indices, target_joint_weights)
+    rng = np.random.default_rng(0)
+    if target_faces is not None:
+        # a low-poly target has a few dozen vertices per segment: match
+        # against area-uniform samples of its surface instead
+        f = np.asarray(target_faces)
+        tri = np.asarray(target_points)[f]
+        area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+        m = 20 * len(f) if len(target_points) < 20000 else 0
+        if m and area.sum() > 0:
+            t = rng.choice(len(f), size=min(m, 200000), p=area / area.sum())
+            r1, r2 = rng.random(len(t)), rng.random(len(t))
+            sq = np.sqrt(r1)
+            b = np.stack([1 - sq, sq * (1 - r2), sq * r2], axis=1)
+            target_points = np.einsum("mk,mkj->mj", b, tri[t])
+            dom_t = dom_t[f[t, np.argmax(b, axis=1)]]
+    turns = []
+    for j in range(n):
+        if mapping[j] < 0:
+            continue
+        desc = _mapped_descendants(children, mapping >= 0, j)
+        if any(_mapped_descendants(children, mapping >= 0, d) for d in desc):
+            continue  # not an end segment
+        sub_r = _subtree(ref_parents, j)
+        sub_t = _subtree(target_parents, int(mapping[j]))
+        vr = np.flatnonzero(sub_r[dom_r])
+        vt = np.flatnonzero(sub_t[dom_t])
+        if len(vr) < max(8, min_fraction * len(posed)) or len(vt) < 8:
+            continue  # fingers and other small parts follow their parent
+        vr = vr if len(vr) <= sample else rng.choice(vr, sample, replace=False)
+        vt = vt if len(vt) <= sample else rng.choice(vt, sample, replace=False)
+        centre = world[j, 3, :3]
+        rot, before, after = _turn_about(posed[vr], target_points[vt], centre)
+        angle = float(np.degrees(np.arccos(np.clip((np.trace(rot) - 1) / 2, -1, 1))))
+        if after > (1.0 - min_gain) * before or not min_angle_deg <= angle <= max_angle_deg:
+            continue
+        turn = np.eye(4)
+        turn[:3, :3] = rot
+        turn[3, :3] = centre - centre @ rot
+        world[sub_r] = world[sub_r] @ turn
+        skin[sub_r] = skin[sub_r] @ turn
+        moved = sub_r[dom_r]
+        posed[moved] = posed[moved] @ rot + turn[3, :3]
+        turns.append((j, round(angle, 1)))
+    return world, skin, turns
