@@ -45,6 +45,9 @@ class Mesh:
     tri_to_poly: (T,) polygon index of each triangle.
     joint_indices, joint_weights: (N, K) influences into the skeleton's joint
         order (weights normalised to sum 1), or None for an unskinned mesh.
+    parts: the separate meshes this one was merged from (a body made of one
+        skinned mesh per body part), in vertex order; empty for a single
+        mesh. Writers author them apart again (:meth:`split_parts`).
     """
     name: str
     points: np.ndarray
@@ -60,6 +63,7 @@ class Mesh:
     joint_indices: np.ndarray | None = None
     joint_weights: np.ndarray | None = None
     display_color: np.ndarray | None = None  # (3,) float 0-1 if authored
+    parts: list = field(default_factory=list)  # [Mesh] merged into this one
 
     @property
     def n_points(self) -> int:
@@ -74,6 +78,54 @@ class Mesh:
         m = copy.copy(self)
         m.points = np.asarray(points, dtype=np.float64)
         return m
+
+    def split_parts(self) -> list[Mesh]:
+        """The meshes this one was merged from (:func:`merge_meshes`), with
+        this mesh's current points and influences; ``[self]`` when it was
+        not merged."""
+        if len(self.parts) < 2:
+            return [self]
+        out, start = [], 0
+        for part in self.parts:
+            stop = start + part.n_points
+            m = part.copy_with_points(self.points[start:stop])
+            if self.joint_indices is not None:
+                m.joint_indices = self.joint_indices[start:stop]
+                m.joint_weights = self.joint_weights[start:stop]
+            out.append(m)
+            start = stop
+        return out
+
+
+def merge_meshes(meshes: list[Mesh], name: str, path: str = "") -> Mesh:
+    """One mesh made of several (a body split into one skinned mesh per
+    part): points, polygons and triangles concatenated, influences padded to
+    the largest K with zero weights; each part's own primvars stay on the
+    part (``parts``), the merged mesh carries none."""
+    if len(meshes) == 1:
+        return meshes[0]
+    offs = np.cumsum([0] + [m.n_points for m in meshes])
+    poly = np.cumsum([0] + [len(m.face_vertex_counts) for m in meshes])
+    ji = jw = None
+    if all(m.joint_indices is not None for m in meshes):
+        k = max(m.joint_indices.shape[1] for m in meshes)
+        ji = np.zeros((offs[-1], k), np.int64)
+        jw = np.zeros((offs[-1], k))
+        for m, o in zip(meshes, offs):
+            ji[o:o + m.n_points, :m.joint_indices.shape[1]] = m.joint_indices
+            jw[o:o + m.n_points, :m.joint_weights.shape[1]] = m.joint_weights
+    return Mesh(name=name, path=path,
+                points=np.concatenate([m.points for m in meshes]),
+                faces=np.concatenate([m.faces + o for m, o in zip(meshes, offs)]),
+                face_vertex_counts=np.concatenate([m.face_vertex_counts for m in meshes]),
+                face_vertex_indices=np.concatenate([m.face_vertex_indices + o
+                                                    for m, o in zip(meshes, offs)]),
+                tri_to_poly=np.concatenate([m.tri_to_poly + p for m, p in zip(meshes, poly)]),
+                left_handed=False if any(m.left_handed != meshes[0].left_handed for m in meshes)
+                else meshes[0].left_handed,
+                double_sided=any(m.double_sided for m in meshes),
+                joint_indices=ji, joint_weights=jw,
+                display_color=meshes[0].display_color, parts=list(meshes))
 
 
 @dataclass

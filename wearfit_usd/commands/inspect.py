@@ -69,6 +69,8 @@ def describe_usd(path: Path) -> dict:
                 "primvars": [p.name for p in m.primvars]}
 
     info["body"] = mesh_info(char.body)
+    if len(char.body.parts) > 1:
+        info["body"]["parts"] = [{"path": m.path, "points": m.n_points} for m in char.body.parts]
     info["body"]["height_m"] = round(float(hi[1] - lo[1]), 4)
     if char.skeleton is not None:
         sk = char.skeleton
@@ -174,6 +176,10 @@ def format_text(info: dict, all_joints: bool) -> str:
     lines.append(f"  body {b['path']}: {b['points']} points, {b['polygons']} polygons "
                  f"({b['triangles']} triangles), height {b['height_m']} m, "
                  f"{'skinned' if b['skinned'] else 'NOT skinned'}")
+    if b.get("parts"):
+        lines.append(f"    made of {len(b['parts'])} skinned meshes (merged for fitting, written apart): "
+                     + ", ".join(p["path"] for p in b["parts"][:8])
+                     + (" ..." if len(b["parts"]) > 8 else ""))
     if "skin_weights" in b:
         s = b["skin_weights"]
         lines.append(f"    skin weights: elementSize {s['element_size']}, influences/vertex "

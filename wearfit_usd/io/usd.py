@@ -19,8 +19,9 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import GeometryError, InputError, USDInputError, WriteError
-from ..model import Character, Mesh, Primvar, Skeleton
-from ..progress import warn
+from ..geometry.body_parts import body_parts
+from ..model import Character, Mesh, Primvar, Skeleton, merge_meshes
+from ..progress import info, warn
 from ..transforms import invert, stage_to_internal, transform_points
 from .atomic import atomic_output
 from .usd_author import StageLayout, author_body, author_skeleton, author_static_item
@@ -354,7 +355,7 @@ def _read_character(path, body_path, item_paths, require_skeleton) -> Character:
         v = UsdGeom.Mesh(prim).GetPointsAttr().Get()
         return 0 if v is None else len(v)
 
-    chosen = None
+    chosen = parts = None
     if body_path is not None:
         prim = stage.GetPrimAtPath(body_path)
         if not prim or not prim.IsA(UsdGeom.Mesh):
@@ -366,6 +367,9 @@ def _read_character(path, body_path, item_paths, require_skeleton) -> Character:
     elif skinned:
         chosen = max(skinned, key=lambda s: npts(s[0]))
         body_prim = chosen[0]
+        if len(skinned) > 1:
+            chosen, parts = _body_parts(stage, skinned, to_int, path)
+            body_prim = chosen[0]
     else:
         if require_skeleton:
             raise USDInputError(path, "no skinned mesh: no Mesh is bound to a Skeleton through "
@@ -382,6 +386,8 @@ def _read_character(path, body_path, item_paths, require_skeleton) -> Character:
             p = p.GetParent()
         skel_root = str(p.GetPath()) if p else ""
         body = _read_skinned_mesh(stage, prim, skq, skeleton, path)
+        if parts is not None and len(parts) > 1:
+            body = merge_meshes(parts, body.name, body.path)
     else:
         body = _read_mesh(stage, body_prim, to_int, path)
 
@@ -394,7 +400,8 @@ def _read_character(path, body_path, item_paths, require_skeleton) -> Character:
                 raise USDInputError(path, f"no Mesh at item path {ip}")
             item_prims.append(prim)
     else:
-        item_prims = [p for p in meshes if p.GetPath() != body_prim.GetPath()]
+        in_body = {m.path for m in (body.parts or [body])}
+        item_prims = [p for p in meshes if str(p.GetPath()) not in in_body]
     skinned_by_path = {s[0].GetPath(): s for s in skinned}
     for prim in item_prims:
         s = skinned_by_path.get(prim.GetPath())
@@ -415,6 +422,38 @@ def _read_character(path, body_path, item_paths, require_skeleton) -> Character:
                      to_internal=to_int, skeleton=skeleton, body=body, items=items,
                      time_codes_per_second=float(stage.GetTimeCodesPerSecond()),
                      skel_root_path=skel_root)
+
+
+def _body_parts(stage, skinned, to_int, path):
+    """Several skinned meshes: the body is every mesh of the skeleton with
+    the largest mesh that is not layered over another one
+    (:func:`~wearfit_usd.geometry.body_parts.body_parts`). Returns (the
+    skinned entry of the first part, [Mesh] of the parts); says what it
+    chose, and warns when the body is much smaller than its skeleton."""
+    by_skel: dict = {}
+    for s in skinned:
+        by_skel.setdefault(str(s[1].GetPath()), []).append(s)
+    best = None
+    for group in by_skel.values():
+        skel = _read_skeleton(group[0][3], group[0][1], to_int, path)
+        meshes = [_read_skinned_mesh(stage, g[0], g[2], skel, path) for g in group]
+        size = max(float(np.linalg.norm(np.ptp(m.points, axis=0))) for m in meshes)
+        if best is None or size > best[0]:
+            best = (size, group, skel, meshes)
+    _, group, skel, meshes = best
+    choice = body_parts([(m.points, m.faces) for m in meshes], skel.bind_positions())
+    parts = [meshes[i] for i in choice.parts]
+    body_m, skel_m = choice.extent_m
+    if len(parts) > 1:
+        info(f"{path}: body = {len(parts)} skinned meshes of {skel.path} merged for fitting "
+             f"({', '.join(m.name for m in parts[:6])}{', ...' if len(parts) > 6 else ''}; "
+             f"{sum(m.n_points for m in parts)} points, {body_m:.2f} m across)")
+    else:
+        info(f"{path}: body = {parts[0].path} ({body_m:.2f} m across)")
+    if body_m < 0.5 * skel_m:
+        warn(f"{path}: the body {parts[0].path} spans {body_m:.2f} m but its skeleton "
+             f"{skel_m:.2f} m: is it a fragment?")
+    return group[choice.seed], parts
 
 
 def _read_skinned_mesh(stage, prim, skinning_query, skeleton: Skeleton, path) -> Mesh:

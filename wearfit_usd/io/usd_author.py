@@ -113,10 +113,30 @@ def author_skeleton(layout: StageLayout, skeleton: Skeleton):
 def author_body(layout: StageLayout, body: Mesh, skeleton: Skeleton | None):
     """Define the body Mesh (``layout.body_path``) from internal-space
     ``body``, skinned to the layout's skeleton when ``skeleton`` is given
-    and the body has influences. Returns the ``UsdGeom.Mesh``."""
+    and the body has influences. A body merged from parts
+    (:func:`~wearfit_usd.model.merge_meshes`) is written as one Mesh per part
+    under a ``Body`` Xform. Returns the (first) ``UsdGeom.Mesh``."""
+    from pxr import UsdGeom
+    if len(body.parts) > 1:
+        # a body read as several skinned meshes: written apart again, one
+        # Mesh per part under a Body Xform (names kept, made unique)
+        UsdGeom.Xform.Define(layout.stage, layout.body_path)
+        names: set = set()
+        out = []
+        for part in body.split_parts():
+            name = prim_name(part.name)
+            while name in names:
+                name += "_"
+            names.add(name)
+            out.append(_author_body_mesh(layout, layout.body_path.AppendChild(name), part, skeleton))
+        return out[0]
+    return _author_body_mesh(layout, layout.body_path, body, skeleton)
+
+
+def _author_body_mesh(layout: StageLayout, prim_path, body: Mesh, skeleton: Skeleton | None):
     from pxr import UsdGeom
     pts = transform_points(body.points, layout.from_internal)
-    m = UsdGeom.Mesh.Define(layout.stage, layout.body_path)
+    m = UsdGeom.Mesh.Define(layout.stage, prim_path)
     m.CreatePointsAttr(vt_points(pts))
     m.CreateExtentAttr(vt_extent(pts))
     author_mesh_topology(m, body)
