@@ -257,3 +257,23 @@ def test_low_poly_target_is_covered_both_ways():
     assert new["backward_samples"] == len(src) - 8
     assert new["target_to_fit_surface_mean_mm"] < 0.7 * old["target_to_fit_surface_mean_mm"]
     assert new["target_to_fit_surface_p99_mm"] < old["target_to_fit_surface_p99_mm"]
+
+
+def test_end_joint_placed_unlike_a_human_is_unpaired():
+    from wearfit_usd.fit.pose_align import prune_leaf_pairs
+
+    def bind(pos):
+        m = np.tile(np.eye(4), (len(pos), 1, 1))
+        m[:, 3, :3] = pos
+        return m
+    parents = np.array([-1, 0, 1, 2, 0])
+    ref = np.array([[0, 1, 0], [0.1, 0.5, 0], [0.1, 0.05, 0], [0.1, 0.0, 0.15], [0, 1.6, 0]])
+    pairs = [(i, i) for i in range(5)]
+    human = ref.copy()
+    human[3] = [0.1, 0.0, 0.14]
+    kept, dropped = prune_leaf_pairs(bind(ref), parents, bind(human), pairs)
+    assert dropped == [] and kept == pairs
+    figure = ref.copy()
+    figure[3] = [0.1, 0.0, 0.04]          # a "toe" joint right under the ankle
+    kept, dropped = prune_leaf_pairs(bind(ref), parents, bind(figure), pairs)
+    assert dropped == [3] and (3, 3) not in kept and len(kept) == 4

@@ -71,6 +71,8 @@ class FitOptions:
     pose_align: bool = True            # skeleton-driven posing (step 1)
     stretch_bones: bool = True         # stretch limbs to the target bone lengths
     refine_ends: bool = True           # turn feet, hands, heads onto the target's (needs its weights)
+    prune_leaves: bool = True          # unpair end joints whose bone is < 0.7 or > 1.4 x the
+                                       # reference's (a toe joint under the ankle)
     same_topology_shortcut: bool = True
     w_smooth: float = 1.0
     w_identity: float = 0.01
@@ -490,6 +492,11 @@ def fit_body(ref_points: Points, ref_faces: Faces, target_points: Points, target
         pairs = match.index_pairs()
         diag["joint_match"] = {"confidence": round(match.confidence, 3), "by_names": match.by_names,
                                "missing_key_roles": match.missing}
+    if have_rigs and opts.pose_align and opts.prune_leaves:
+        pairs, dropped = pa.prune_leaf_pairs(ref_skeleton.bind_world, ref_skeleton.parents,
+                                             target_skeleton.bind_world, pairs)
+        if dropped:
+            diag["unpaired_end_joints"] = [ref_skeleton.joint_names[j] for j in dropped]
     if have_rigs and len(pairs) >= 3:
         pose = pa.pose_to_target(ref_skeleton.bind_world, ref_skeleton.parents,
                                  target_skeleton.bind_world, pairs, stretch=opts.stretch_bones)
@@ -508,6 +515,7 @@ def fit_body(ref_points: Points, ref_faces: Faces, target_points: Points, target
                                         np.asarray(ref_joint_weights), skin)
                     diag["turned_end_segments"] = {ref_skeleton.joint_names[j]: a
                                                    for j, a in turns}
+
             diag["alignment"] = "pose"
         else:
             if opts.pose_align and not can_skin:

@@ -287,6 +287,64 @@ def pose_to_target(ref_bind: Matrices4, ref_parents: np.ndarray, target_bind: Ma
 
 
 # --------------------------------------------------------------------------
+# end joints placed unlike a human's
+
+def prune_leaf_pairs(ref_bind: Matrices4, ref_parents: np.ndarray, target_bind: Matrices4,
+                     pairs: list[tuple[int, int]], ratio: tuple[float, float] = (0.7, 1.4),
+                     min_length: float = 0.04) -> tuple[list[tuple[int, int]], list[int]]:
+    """Unpair end joints whose bone would squash or stretch their segment.
+
+    An end joint (mapped, nothing mapped below it) gives the direction and
+    length of the bone from its nearest mapped ancestor. Some rigs place it
+    unlike a human's: a low-poly figure's "toe" joint sits under the ankle
+    (the bone 0.072 m long, pointing into the floor, where a human foot is
+    0.14 m to the ball); posed on it, the foot is squashed to 60 % and turned
+    down, and the toes stay 10 cm short of the target's (fit target->fit
+    p99 104 mm instead of 18 mm). When that bone's length, over the
+    reference's times the global scale of the joint pairs, leaves ``ratio``
+    the pair is dropped: the segment keeps its shape and turns with its
+    parent (:func:`pose_to_target`), and the non-rigid fit places it. Bones
+    under ``min_length`` x the reference skeleton's extent (finger tips) keep
+    their pairs: their segments are too small to matter and free ones fold.
+
+    ref_bind (J, 4, 4), ref_parents (J,), target_bind (Jt, 4, 4); pairs
+    [(ref joint, target joint)]. Returns (kept pairs, dropped reference
+    joints).
+    """
+    n = len(ref_parents)
+    mapping = np.full(n, -1)
+    for i, j in pairs:
+        mapping[i] = j
+    mapped = mapping >= 0
+    idx = np.flatnonzero(mapped)
+    if len(idx) < 3:
+        return list(pairs), []
+    P = ref_bind[:, 3, :3]
+    Q = target_bind[:, 3, :3]
+    sim = similarity_from_pairs(P[idx], Q[mapping[idx]])
+    scale = float(np.cbrt(np.linalg.det(sim[:3, :3])))
+    children = [[] for _ in range(n)]
+    for j, p in enumerate(ref_parents):
+        if p >= 0:
+            children[p].append(j)
+    extent = float(np.linalg.norm(np.ptp(P, axis=0)))
+    dropped = []
+    for leaf in idx:
+        if _mapped_descendants(children, mapped, leaf):
+            continue
+        anc = ref_parents[leaf]
+        while anc >= 0 and not mapped[anc]:
+            anc = ref_parents[anc]
+        if anc < 0:
+            continue
+        lr = scale * float(np.linalg.norm(P[leaf] - P[anc]))
+        lt = float(np.linalg.norm(Q[mapping[leaf]] - Q[mapping[anc]]))
+        if lr > min_length * extent * scale and not ratio[0] <= lt / lr <= ratio[1]:
+            dropped.append(int(leaf))
+    return [p for p in pairs if p[0] not in dropped], dropped
+
+
+# --------------------------------------------------------------------------
 # end segments turned onto the target surface
 
 def _subtree(parents: np.ndarray, j: int) -> np.ndarray:
