@@ -277,3 +277,19 @@ def test_end_joint_placed_unlike_a_human_is_unpaired():
     figure[3] = [0.1, 0.0, 0.04]          # a "toe" joint right under the ankle
     kept, dropped = prune_leaf_pairs(bind(ref), parents, bind(figure), pairs)
     assert dropped == [3] and (3, 3) not in kept and len(kept) == 4
+
+
+@pytest.mark.slow
+def test_low_poly_figure_is_covered(data_dir, ref_male):
+    # Khronos' RiggedFigure (370 vertices, box head, prism limbs, its toe
+    # joint under the ankle): before, target -> fit surface p99 213 mm (feet
+    # and head uncovered); now the toe pair is dropped and the feet turned
+    from wearfit_usd.io.usd import read_character
+    fig = read_character(data_dir / "thirdparty" / "bodies" / "RiggedFigure_blender.usdc")
+    r = fit_character(ref_male, fig)
+    d = r.diagnostics
+    assert set(d["unpaired_end_joints"]) == {"ball_l", "ball_r"}
+    assert d["backward_samples"] == ref_male.body.n_points - fig.body.n_points
+    assert d["target_to_fit_surface_p99_mm"] < 30.0
+    assert d["target_to_fit_surface_mean_mm"] < 3.0
+    assert d["fit_to_target_surface_mean_mm"] < 6.0
