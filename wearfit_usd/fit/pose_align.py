@@ -11,6 +11,10 @@ Everything is in internal space (Y up, metres) with row-vector 4x4 matrices
   line up with the target's bind pose: each joint goes to its mapped target
   joint and each bone is turned (and stretched along its axis) onto the
   target bone.
+* :func:`prune_leaf_pairs` drops end-joint pairs whose bone is far from the
+  reference's length (a toe joint under the ankle), and
+  :func:`refine_end_segments` turns end segments (feet, hands, heads) onto
+  the target's matching surface when the bones left them off.
 * :func:`similarity_from_pairs` (the Umeyama fit of
   :mod:`wearfit_usd.geometry.mesh` as a 4x4 matrix) and
   :func:`surface_similarity` (PCA + scaled ICP) give global scale + rigid
@@ -299,8 +303,9 @@ def prune_leaf_pairs(ref_bind: Matrices4, ref_parents: np.ndarray, target_bind: 
     unlike a human's: a low-poly figure's "toe" joint sits under the ankle
     (the bone 0.072 m long, pointing into the floor, where a human foot is
     0.14 m to the ball); posed on it, the foot is squashed to 60 % and turned
-    down, and the toes stay 10 cm short of the target's (fit target->fit
-    p99 104 mm instead of 18 mm). When that bone's length, over the
+    down, and the toes stay 10 cm short of the target's (RiggedFigure fit,
+    target->fit surface p99: 104 mm with the pair, 18 mm without it and the
+    foot turned by :func:`refine_end_segments`). When that bone's length, over the
     reference's times the global scale of the joint pairs, leaves ``ratio``
     the pair is dropped: the segment keeps its shape and turns with its
     parent (:func:`pose_to_target`), and the non-rigid fit places it. Bones
