@@ -18,7 +18,7 @@ def _sphere(radius, subdiv=4):
 def test_reproduces_reference_items_exactly(ref_male):
     pts = np.concatenate([m.points for m in ref_male.items])
     b = bind(ref_male.body.points, ref_male.body.faces, pts, k=5)
-    assert b.matrix.shape == (len(pts), ref_male.body.n_points + len(ref_male.body.faces))
+    assert b.matrix.shape == (len(pts), ref_male.body.n_points + 3 * len(ref_male.body.faces))
     assert np.abs(b.evaluate(ref_male.body.points) - pts).max() < 1e-6
     # the documented formulation: one product over [body; v1 + unit normal]
     assert np.abs(b.matrix @ b.stacked(ref_male.body.points) - pts).max() < 1e-6
