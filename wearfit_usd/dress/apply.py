@@ -513,6 +513,45 @@ def apply(plan_: DressPlan, body_points: np.ndarray, body_faces: np.ndarray, pen
     return Applied(pts, ev.free, moved, timings)
 
 
+def push_out_target(plan_: DressPlan, body: Mesh, points: np.ndarray, push_inherited: bool = False) -> Corrected:
+    """Item points pushed out of the target's own surface, for a target of
+    another topology than the reference.
+
+    The passes of :func:`apply` keep the items outside the fitted body (the
+    reference topology deformed onto the target); where that fit leaves the
+    target's surface outside it (a coarse game body's flat facets, a remeshed
+    scan's merged fingers) the items are inside the target. Vertices found
+    inside it that were outside the reference body go out to their
+    reference clearance (:func:`corrections.push_out`), the pushes spread
+    over the item mesh (:func:`spread_pass`) and checked once more;
+    rigid parts keep their authored insets, as in :func:`clearance_targets`.
+
+    Parameters
+    ----------
+    plan_ : DressPlan
+    body : Mesh
+        The target body.
+    points : (M, 3) float array
+        The dressed item points.
+    push_inherited : bool
+        See :class:`PassOptions`.
+
+    Returns
+    -------
+    Corrected
+        points (M, 3), moved (M,) bool.
+    """
+    target = clearance_targets(plan_, push_inherited, PassOptions().inherited_clearance)
+    query = SurfaceQuery(body.faces, body.points)
+    pushed, moved = push_out(query, points, target, neighbours=ring_neighbours(plan_, True))
+    if not moved.any():
+        return Corrected(pushed, moved)
+    # spread over the item mesh (single-vertex pushes fold and stretch it), then once more
+    spread = spread_pass(plan_, points, pushed, moved)
+    pts, again = push_out(query, spread.points, target, mask=spread.moved | moved)
+    return Corrected(pts, moved | spread.moved | again)
+
+
 def dress(ref: Character, target: Character, k: int = 5, use_regions: bool = True,
           rigid="auto", penetration: bool = True, body_points: np.ndarray | None = None,
           strict_far: bool = False, push_inherited: bool = False, untangle: bool = True,
@@ -540,6 +579,9 @@ def dress(ref: Character, target: Character, k: int = 5, use_regions: bool = Tru
             info(f"{target.source}: rigid parts that do not fit this body move freely: {', '.join(released)}")
     pts, free, moved, tm = apply(p, body_points, ref.body.faces, penetration=penetration, query=query,
                                  options=PassOptions(push_inherited=push_inherited, untangle=untangle))
+    if penetration and not np.array_equal(target.body.faces, ref.body.faces):
+        pts, on_target = push_out_target(p, target.body, pts, push_inherited)
+        moved |= on_target
     timings = {"body_fit_s": t_fit, **p.timings, **tm}
     keep_weights = (target.skeleton is not None and ref.skeleton is not None
                     and target.skeleton.joint_names == ref.skeleton.joint_names)
