@@ -6,8 +6,8 @@ or unevenly meshed body the nearest centroids belong to small triangles
 beside the vertex, or to large ones far across a joint). In triangle
 ``t = (v1, v2, v3)`` with unit normal ``n`` it is stored as the closest
 point of the triangle to its projection, barycentric ``(a', b')``, plus the
-rest in the triangle's orthonormal frame (``t1`` the unit first edge,
-``t2 = n x t1``) and the offset ``c`` along the normal:
+rest in the triangle's orthonormal frame (``t1`` the unit bisector of the
+edges at ``v1``, ``t2 = n x t1``) and the offset ``c`` along the normal:
 
     p = v1 + a' (v2 - v1) + b' (v3 - v1) + r1 t1 + r2 t2 + c n
 
@@ -39,7 +39,7 @@ from scipy.spatial import cKDTree
 
 from ..geometry.closest import closest_point_on_triangles
 from ..kernels import binding_eval
-from ..kernels.binding import tangent_frames_numpy
+from ..kernels.binding import frame_from_edges, tangent_frames_numpy
 
 
 def triangle_frames(points: np.ndarray, faces: np.ndarray):
@@ -108,7 +108,8 @@ class Binding:
 
     def frame_vertices(self, body_points: np.ndarray, triangles: np.ndarray | None = None) -> np.ndarray:
         """[v1 + n; v1 + t1; v1 + t2] for ``triangles`` (default: all), shape
-        (..., 3T, 3): n the unit normal, t1 the unit first edge, t2 = n x t1."""
+        (..., 3T, 3): n the unit normal, t1 the unit bisector of the edges at
+        v1, t2 = n x t1."""
         f = self.faces if triangles is None else self.faces[triangles]
         p = np.asarray(body_points, dtype=np.float64)
         v1 = p[..., f[:, 0], :]
@@ -320,8 +321,7 @@ def _assemble(body: np.ndarray, faces: np.ndarray, q: np.ndarray, tri_idx: np.nd
     _, bary, _ = closest_point_on_triangles(q[:, None, :] - c[..., None] * nn, v1, v2, v3)
     ac, bc = bary[..., 1], bary[..., 2]
     res = dp - ac[..., None] * a1 - bc[..., None] * a2
-    t1 = a1 / np.maximum(np.sqrt(g11), 1e-300)[..., None]
-    t2 = np.cross(nn, t1)
+    _, t1, t2 = frame_from_edges(a1, a2)
     r1 = np.einsum("mki,mki->mk", res, t1)
     r2 = np.einsum("mki,mki->mk", res, t2)
 
