@@ -65,6 +65,9 @@ class Binding:
         normal (the vertex's clearance above that triangle's plane).
     used: (U,) sorted indices of the triangles any vertex is bound to; only
         their normal vertices are computed by :meth:`evaluate`.
+    rest: (M, N + 3T) CSR, the part of ``matrix`` that places each vertex
+        beyond its triangles' closest points (the orthonormal-frame rest):
+        ``rest @ stacked`` is that offset, (M, 3).
     """
     matrix: sp.csr_matrix
     faces: np.ndarray
@@ -72,6 +75,7 @@ class Binding:
     weights: np.ndarray
     local: np.ndarray
     used: np.ndarray
+    rest: sp.csr_matrix | None = None
 
     def __post_init__(self):
         n_tri, n_used = len(self.faces), len(self.used)
@@ -336,7 +340,13 @@ def _assemble(body: np.ndarray, faces: np.ndarray, q: np.ndarray, tri_idx: np.nd
     mat.eliminate_zeros()
     mat.sort_indices()
     used = np.unique(tri_idx[w > 0])
-    return Binding(matrix=mat, faces=faces, triangles=tri_idx, weights=w, local=local, used=used)
+    rcols = np.concatenate([f[..., 0], n_body + n_tri + tri_idx, n_body + 2 * n_tri + tri_idx], axis=1)
+    rvals = np.concatenate([-w * (r1 + r2), w * r1, w * r2], axis=1)
+    rest = sp.csr_matrix((rvals.ravel(), (np.repeat(np.arange(m), 3 * k), rcols.ravel())),
+                         shape=(m, n_body + 3 * n_tri))
+    rest.sum_duplicates()
+    rest.eliminate_zeros()
+    return Binding(matrix=mat, faces=faces, triangles=tri_idx, weights=w, local=local, used=used, rest=rest)
 
 
 def rebind(binding: Binding, body_points: np.ndarray, item_points: np.ndarray) -> Binding:
