@@ -190,7 +190,9 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
             frame_plan = dressed.plan.rebound(base_body, all_base)
         else:
             base = replace(target, body=body.copy_with_points(base_body), skeleton=base_skeleton, items=items)
-            frame_plan = plan_dress(base, k=opt.k, regions=ref_plan.regions)
+            # parts the dressing released on this body stay free (bound, not rigid)
+            released = [n for n in ref_plan.rigid_items if n not in dressed.plan.rigid_items]
+            frame_plan = plan_dress(base, k=opt.k, regions=ref_plan.regions, free_items=released)
         frame_eval = FrameEvaluator(frame_plan)
         evaluator = lambda f, body_f: frame_eval(body_f)  # noqa: E731
         items_for_skin = []

@@ -29,8 +29,10 @@ from scipy.spatial import cKDTree
 
 from ..fit.body_fit import fit_character
 from ..geometry.closest import SurfaceQuery, VertexNormals
+from ..geometry.mesh import edges
 from ..model import Character, Mesh
 from ..progress import debug, info
+from . import regions as R
 from .binding import local_signed_distance
 from .corrections import SPREAD_CLEARANCE_DRIFT, push_out, spread_corrections
 from .layers import keep_layers
@@ -155,7 +157,37 @@ class Footprints:
         self._taken_at[sv] = points[sv]
 
 
-def evaluate(plan_: DressPlan, body_points: np.ndarray) -> Evaluation:
+def leg_length_ratio(plan_: DressPlan, body_points: np.ndarray) -> float:
+    """How much longer the legs are on ``body_points`` than on the plan's
+    reference body: the summed length ratio of the leg edges running along
+    the leg (within 37 degrees of the vertical on the reference; lengths do
+    not change with the pose). 1 without leg regions.
+
+    Parameters
+    ----------
+    plan_ : DressPlan
+    body_points : (N, 3) float array
+        Of the plan's body topology.
+
+    Returns
+    -------
+    float
+    """
+    legs = np.isin(plan_.regions.body, (R.LEFT_LEG, R.RIGHT_LEG))
+    e = edges(plan_.body_query.faces)
+    e = e[legs[e[:, 0]] & legs[e[:, 1]]]
+    if len(e) == 0:
+        return 1.0
+    d0 = plan_.ref_body[e[:, 1]] - plan_.ref_body[e[:, 0]]
+    l0 = np.linalg.norm(d0, axis=1)
+    along = np.abs(d0[:, 1]) > 0.8 * l0
+    if not along.any():
+        return 1.0
+    d1 = body_points[e[along, 1]] - body_points[e[along, 0]]
+    return float(np.linalg.norm(d1, axis=1).sum() / l0[along].sum())
+
+
+def evaluate(plan_: DressPlan, body_points: np.ndarray, skirt_scale: float = 1.0) -> Evaluation:
     """The plan on a body, before any correction: the binding, the rigid parts
     placed by their similarity transforms, the loose parts smoothed
     (:class:`corrections.LooseSmoother`).
@@ -165,6 +197,9 @@ def evaluate(plan_: DressPlan, body_points: np.ndarray) -> Evaluation:
     plan_ : DressPlan
     body_points : (N, 3) float array
         Body points of the plan's body topology.
+    skirt_scale : float
+        Scale of the skirt parts' hanging length (the part beyond their hip
+        triangles; :func:`leg_length_ratio`).
 
     Returns
     -------
@@ -172,6 +207,11 @@ def evaluate(plan_: DressPlan, body_points: np.ndarray) -> Evaluation:
         free (M, 3), points (M, 3), rigid_maps.
     """
     free = plan_.binding.evaluate(body_points)
+    skirt = plan_.regions.bind == R.HIPS
+    if skirt_scale != 1.0 and skirt.any() and plan_.binding.rest is not None:
+        # skirt parts hang from the hips: their length follows the legs'
+        rest = plan_.binding.rest[np.flatnonzero(skirt)] @ plan_.binding.stacked(body_points)
+        free[skirt] += (skirt_scale - 1.0) * rest
     pts = free.copy()
     rigid_maps = []
     if plan_.rigid_groups:
@@ -444,7 +484,8 @@ def correct_penetrations(plan_: DressPlan, body_points: np.ndarray, body_faces: 
 
 
 def apply(plan_: DressPlan, body_points: np.ndarray, body_faces: np.ndarray, penetration: bool = True,
-          query: SurfaceQuery | None = None, options: PassOptions | None = None) -> Applied:
+          query: SurfaceQuery | None = None, options: PassOptions | None = None,
+          skirt_scale: float = 1.0) -> Applied:
     """Evaluate a plan on fitted body points and, with ``penetration``, correct
     the result.
 
@@ -484,6 +525,8 @@ def apply(plan_: DressPlan, body_points: np.ndarray, body_faces: np.ndarray, pen
         On ``body_points``, if already built.
     options : PassOptions, optional
         Default ``PassOptions()``.
+    skirt_scale : float
+        See :func:`evaluate`.
 
     Returns
     -------
@@ -493,7 +536,7 @@ def apply(plan_: DressPlan, body_points: np.ndarray, body_faces: np.ndarray, pen
     """
     options = options or PassOptions()
     t0 = time.perf_counter()
-    ev = evaluate(plan_, body_points)
+    ev = evaluate(plan_, body_points, skirt_scale)
     t1 = time.perf_counter()
     pts, moved = ev.points, np.zeros(len(ev.points), dtype=bool)
     if penetration:
@@ -511,6 +554,45 @@ def apply(plan_: DressPlan, body_points: np.ndarray, body_faces: np.ndarray, pen
         timings["untangle_s"] = time.perf_counter() - t2
         debug(f"untangle: {stats}")
     return Applied(pts, ev.free, moved, timings)
+
+
+def push_out_target(plan_: DressPlan, body: Mesh, points: np.ndarray, push_inherited: bool = False) -> Corrected:
+    """Item points pushed out of the target's own surface, for a target of
+    another topology than the reference.
+
+    The passes of :func:`apply` keep the items outside the fitted body (the
+    reference topology deformed onto the target); where that fit leaves the
+    target's surface outside it (a coarse game body's flat facets, a remeshed
+    scan's merged fingers) the items are inside the target. Vertices found
+    inside it that were outside the reference body go out to their
+    reference clearance (:func:`corrections.push_out`), the pushes spread
+    over the item mesh (:func:`spread_pass`) and checked once more;
+    rigid parts keep their authored insets, as in :func:`clearance_targets`.
+
+    Parameters
+    ----------
+    plan_ : DressPlan
+    body : Mesh
+        The target body.
+    points : (M, 3) float array
+        The dressed item points.
+    push_inherited : bool
+        See :class:`PassOptions`.
+
+    Returns
+    -------
+    Corrected
+        points (M, 3), moved (M,) bool.
+    """
+    target = clearance_targets(plan_, push_inherited, PassOptions().inherited_clearance)
+    query = SurfaceQuery(body.faces, body.points)
+    pushed, moved = push_out(query, points, target, neighbours=ring_neighbours(plan_, True))
+    if not moved.any():
+        return Corrected(pushed, moved)
+    # spread over the item mesh (single-vertex pushes fold and stretch it), then once more
+    spread = spread_pass(plan_, points, pushed, moved)
+    pts, again = push_out(query, spread.points, target, mask=spread.moved | moved)
+    return Corrected(pts, moved | spread.moved | again)
 
 
 def dress(ref: Character, target: Character, k: int = 5, use_regions: bool = True,
@@ -538,8 +620,13 @@ def dress(ref: Character, target: Character, k: int = 5, use_regions: bool = Tru
         p, released = release_misfits(p, body_points, query)
         if released:
             info(f"{target.source}: rigid parts that do not fit this body move freely: {', '.join(released)}")
+    # a skirt's hem hangs as much lower or higher as the legs are longer or shorter
     pts, free, moved, tm = apply(p, body_points, ref.body.faces, penetration=penetration, query=query,
-                                 options=PassOptions(push_inherited=push_inherited, untangle=untangle))
+                                 options=PassOptions(push_inherited=push_inherited, untangle=untangle),
+                                 skirt_scale=leg_length_ratio(p, body_points))
+    if penetration and not np.array_equal(target.body.faces, ref.body.faces):
+        pts, on_target = push_out_target(p, target.body, pts, push_inherited)
+        moved |= on_target
     timings = {"body_fit_s": t_fit, **p.timings, **tm}
     keep_weights = (target.skeleton is not None and ref.skeleton is not None
                     and target.skeleton.joint_names == ref.skeleton.joint_names)

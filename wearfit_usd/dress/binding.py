@@ -1,17 +1,27 @@
 """Bind item vertices to a body surface ("fit metric"), evaluate as one sparse product.
 
-Each item vertex ``p`` is bound to its ``k`` nearest body triangles (by
-centroid). In triangle ``t = (v1, v2, v3)`` with unit normal ``n`` it is stored
-as local coordinates ``(a, b, c)``:
+Each item vertex ``p`` is bound to its ``k`` nearest body triangles, by the
+distance from ``p`` to the triangle itself (not to its centroid: on a coarse
+or unevenly meshed body the nearest centroids belong to small triangles
+beside the vertex, or to large ones far across a joint). In triangle
+``t = (v1, v2, v3)`` with unit normal ``n`` it is stored as the closest
+point of the triangle to its projection, barycentric ``(a', b')``, plus the
+rest in the triangle's orthonormal frame (``t1`` the unit bisector of the
+edges at ``v1``, ``t2 = n x t1``) and the offset ``c`` along the normal:
 
-    p = v1 + a (v2 - v1) + b (v3 - v1) + c n          (c = offset along n)
+    p = v1 + a' (v2 - v1) + b' (v3 - v1) + r1 t1 + r2 t2 + c n
 
-With Sumner's fourth vertex ``v4 = v1 + n`` this is linear in the stacked
-vector ``[v1, v2, v3, v4]``: ``p = (1-a-b-c) v1 + a v2 + b v3 + c v4``. The
-``k`` triangles are blended with smooth inverse-distance weights that reach 0
-at the (k+1)-th candidate's distance (so the binding is continuous over the
-item). Everything is one sparse matrix ``W`` (M, N + T) acting on
-``stacked = [body points (N, 3); normal vertices (T, 3)]``.
+(``r1 = r2 = 0`` where p lies over the triangle). The frame turns with the
+triangle but does not stretch with it: a vertex beyond the triangle's edge
+(a neighbour's, a skirt's hem hanging below the hips) keeps its distance
+instead of being thrown by the triangle's own stretch times its distance in
+triangle sizes (the plain affine frame ``v1 + a e1 + b e2`` extrapolates).
+With the frame vertices ``v1 + n``, ``v1 + t1``, ``v1 + t2`` this is linear
+in the stacked vector. The ``k`` triangles are blended with smooth
+inverse-distance weights that reach 0 at the (k+1)-th candidate's distance
+(so the binding is continuous over the item). Everything is one sparse
+matrix ``W`` (M, N + 3T) acting on ``stacked = [body points (N, 3); normal
+vertices (T, 3); tangent vertices (T, 3), (T, 3)]``.
 
 On the body it was built on, ``W @ stacked`` reproduces the item exactly; a
 rigid motion of the body moves the item rigidly; the offset along the unit
@@ -29,6 +39,7 @@ from scipy.spatial import cKDTree
 
 from ..geometry.closest import closest_point_on_triangles
 from ..kernels import binding_eval
+from ..kernels.binding import frame_from_edges, tangent_frames_numpy
 
 
 def triangle_frames(points: np.ndarray, faces: np.ndarray):
@@ -46,7 +57,7 @@ def triangle_frames(points: np.ndarray, faces: np.ndarray):
 class Binding:
     """A linear binding of M item vertices to a body with N vertices, T triangles.
 
-    matrix: (M, N + T) CSR, item = matrix @ stacked(body_points).
+    matrix: (M, N + 3T) CSR, item = matrix @ stacked(body_points).
     faces: (T, 3) body triangles.
     triangles: (M, k) bound triangle of each item vertex, nearest first.
     weights: (M, k) blend weights (rows sum to 1).
@@ -54,6 +65,9 @@ class Binding:
         normal (the vertex's clearance above that triangle's plane).
     used: (U,) sorted indices of the triangles any vertex is bound to; only
         their normal vertices are computed by :meth:`evaluate`.
+    rest: (M, N + 3T) CSR, the part of ``matrix`` that places each vertex
+        beyond its triangles' closest points (the orthonormal-frame rest):
+        ``rest @ stacked`` is that offset, (M, 3).
     """
     matrix: sp.csr_matrix
     faces: np.ndarray
@@ -61,19 +75,23 @@ class Binding:
     weights: np.ndarray
     local: np.ndarray
     used: np.ndarray
+    rest: sp.csr_matrix | None = None
 
     def __post_init__(self):
-        self.n_body = int(self.matrix.shape[1] - len(self.faces))
+        n_tri, n_used = len(self.faces), len(self.used)
+        self.n_body = int(self.matrix.shape[1] - 3 * n_tri)
         self.used_faces = np.ascontiguousarray(self.faces[self.used], dtype=np.int64)
-        # the same matrix with the normal-vertex columns of the used
-        # triangles packed right after the body columns: evaluate fills one
-        # contiguous (N + U, 3) buffer instead of scattering into N + T rows
-        remap = np.full(len(self.faces), -1, dtype=np.int64)
-        remap[self.used] = np.arange(len(self.used))
+        # the same matrix with the normal- and tangent-vertex columns of the
+        # used triangles packed right after the body columns: evaluate fills
+        # one contiguous (N + 3U, 3) buffer instead of scattering into N + 3T rows
+        remap = np.full(n_tri, -1, dtype=np.int64)
+        remap[self.used] = np.arange(n_used)
         m = self.matrix.tocoo()
-        cols = np.where(m.col < self.n_body, m.col, self.n_body + remap[np.maximum(m.col - self.n_body, 0)])
+        extra = np.maximum(m.col - self.n_body, 0)
+        cols = np.where(m.col < self.n_body, m.col,
+                        self.n_body + (extra // n_tri) * n_used + remap[extra % n_tri])
         self.compact = sp.csr_matrix((m.data, (m.row, cols)),
-                                      shape=(self.matrix.shape[0], self.n_body + len(self.used)))
+                                      shape=(self.matrix.shape[0], self.n_body + 3 * n_used))
         self.compact.sort_indices()
         self._buf = np.zeros((self.compact.shape[1], 3))
 
@@ -92,10 +110,21 @@ class Binding:
         ln = np.sqrt(np.einsum("...i,...i->...", n, n))
         return v1 + n / np.where(ln < 1e-300, 1.0, ln)[..., None]
 
-    def stacked(self, body_points: np.ndarray) -> np.ndarray:
-        """[body points (N, 3); normal vertices v1 + n (T, 3)] -> (N + T, 3)."""
+    def frame_vertices(self, body_points: np.ndarray, triangles: np.ndarray | None = None) -> np.ndarray:
+        """[v1 + n; v1 + t1; v1 + t2] for ``triangles`` (default: all), shape
+        (..., 3T, 3): n the unit normal, t1 the unit bisector of the edges at
+        v1, t2 = n x t1."""
+        f = self.faces if triangles is None else self.faces[triangles]
         p = np.asarray(body_points, dtype=np.float64)
-        return np.concatenate([p, self.normal_vertices(p)], axis=0)
+        v1 = p[..., f[:, 0], :]
+        n, t1, t2 = tangent_frames_numpy(p, f)
+        return np.concatenate([v1 + n, v1 + t1, v1 + t2], axis=-2)
+
+    def stacked(self, body_points: np.ndarray) -> np.ndarray:
+        """[body points (N, 3); normal vertices v1 + n (T, 3); tangent
+        vertices v1 + t1 (T, 3), v1 + t2 (T, 3)] -> (N + 3T, 3)."""
+        p = np.asarray(body_points, dtype=np.float64)
+        return np.concatenate([p, self.frame_vertices(p)], axis=0)
 
     def evaluate(self, body_points: np.ndarray) -> np.ndarray:
         """Item points for new body points (N, 3) -> (M, 3); or a batch
@@ -107,7 +136,7 @@ class Binding:
         f = p.shape[0]
         st = np.empty((self.compact.shape[1], f, 3))
         st[:self.n_body] = p.transpose(1, 0, 2)
-        st[self.n_body:] = self.normal_vertices(p, self.used).transpose(1, 0, 2)
+        st[self.n_body:] = self.frame_vertices(p, self.used).transpose(1, 0, 2)
         # (N + U, F*3): one product for the whole batch
         out = self.compact @ st.reshape(len(st), f * 3)
         return out.reshape(-1, f, 3).transpose(1, 0, 2)
@@ -150,11 +179,55 @@ def _group_masks(candidate_mask, n_items: int, n_tris: int):
                      "(triangle_labels (T,), allowed (M,) labels or (M, R) bool)")
 
 
+CANDIDATES_PER_K = 3  # nearest centroids examined per bound triangle (plus the nearest vertex's ring)
+
+
+def _nearest_triangles(body: np.ndarray, faces: np.ndarray, centroids: np.ndarray, allowed: np.ndarray,
+                       q: np.ndarray, kk: int):
+    """The ``kk`` triangles of ``allowed`` nearest to each point of q (V, 3)
+    by point-to-triangle distance, nearest first: indices (V, kk) and
+    distances (V, kk).
+
+    Candidates are the nearest centroids (``CANDIDATES_PER_K`` x kk + 4 of
+    them) and every allowed triangle around the nearest vertex of the
+    allowed triangles, which holds the closest point also when a large
+    triangle's centroid is far from a point lying right over it.
+    """
+    n_c = min(len(allowed), CANDIDATES_PER_K * kk + 4)
+    _, ci = cKDTree(centroids[allowed]).query(q, k=n_c)
+    ci = allowed[np.asarray(ci).reshape(len(q), n_c)]
+    sub = faces[allowed]
+    verts, local = np.unique(sub.ravel(), return_inverse=True)
+    local = local.reshape(-1, 3)
+    _, vi = cKDTree(body[verts]).query(q, k=1)
+    # allowed triangles around each vertex, padded with the first
+    inc = sp.csr_matrix((np.ones(local.size), (local.ravel(), np.repeat(np.arange(len(sub)), 3))),
+                        shape=(len(verts), len(sub)))
+    deg = np.diff(inc.indptr)
+    w = int(deg.max())
+    pos = np.minimum(np.arange(w)[None, :], deg[vi][:, None] - 1)
+    ring = allowed[inc.indices[inc.indptr[vi][:, None] + pos]]
+    cand = np.concatenate([ci, ring], axis=1)
+    f = faces[cand]
+    cp, _, _ = closest_point_on_triangles(q[:, None, :], body[f[..., 0]], body[f[..., 1]], body[f[..., 2]])
+    d = np.linalg.norm(q[:, None, :] - cp, axis=-1)
+    # each triangle once: duplicates (same index) after the first go to inf
+    order = np.argsort(cand, axis=1, kind="stable")
+    cs = np.take_along_axis(cand, order, axis=1)
+    dup = np.zeros_like(cs, dtype=bool)
+    dup[:, 1:] = cs[:, 1:] == cs[:, :-1]
+    ds = np.where(dup, np.inf, np.take_along_axis(d, order, axis=1))
+    best = np.argsort(ds, axis=1, kind="stable")[:, :kk]
+    return np.take_along_axis(cs, best, axis=1), np.take_along_axis(ds, best, axis=1)
+
+
 def bind(body_points: np.ndarray, body_faces: np.ndarray, item_points: np.ndarray,
          k: int = 5, candidate_mask=None, eps: float = 1e-9) -> Binding:
     """Bind item vertices (M, 3) to the body (points (N, 3), faces (T, 3)).
 
-    k: triangles per item vertex (nearest centroids).
+    k: triangles per item vertex (nearest by point-to-triangle distance); an
+        int, or (M,) ints (rows with fewer are padded with weight-0 repeats
+        of their last triangle up to the largest).
     candidate_mask: restricts the triangles each vertex may use:
         None (all), a (T,) bool mask, or ``(tri_labels (T,), allowed)`` with
         ``allowed`` either (M,) one region label per vertex or (M, R) bool
@@ -167,9 +240,10 @@ def bind(body_points: np.ndarray, body_faces: np.ndarray, item_points: np.ndarra
     n_tri, m = len(faces), len(q)
     if m == 0:
         raise ValueError("bind: no item points")
-    k = int(k)
-    if k < 1:
+    k_rows = np.broadcast_to(np.asarray(k, dtype=np.int64), (m,))
+    if k_rows.min() < 1:
         raise ValueError("bind: k must be >= 1")
+    k = int(k_rows.max())
     e1, e2, nrm, area2 = triangle_frames(body, faces)
     scale = np.median(area2[area2 > 0]) if np.any(area2 > 0) else 1.0
     good = area2 > 1e-10 * scale
@@ -178,27 +252,27 @@ def bind(body_points: np.ndarray, body_faces: np.ndarray, item_points: np.ndarra
     tri_idx = np.zeros((m, k), dtype=np.int64)
     cdist = np.zeros((m, k))
     radius = np.zeros(m)
-    for verts, allowed in _group_masks(candidate_mask, m, n_tri):
-        if len(verts) == 0:
+    for group, allowed in _group_masks(candidate_mask, m, n_tri):
+        if len(group) == 0:
             continue
         allowed = allowed[good[allowed]]
         if len(allowed) == 0:
             raise ValueError("bind: some item vertices have no usable candidate triangle")
-        kk = min(k + 1, len(allowed))
-        d, i = cKDTree(centroids[allowed]).query(q[verts], k=kk)
-        d = d.reshape(len(verts), kk)
-        i = allowed[i.reshape(len(verts), kk)]
-        use = min(k, kk)
-        ti = np.empty((len(verts), k), dtype=np.int64)
-        dd = np.empty((len(verts), k))
-        ti[:, :use] = i[:, :use]
-        dd[:, :use] = d[:, :use]
-        if use < k:  # fewer candidates than k: repeat the last one (weight 0 below)
-            ti[:, use:] = i[:, use - 1:use]
-            dd[:, use:] = np.inf
-        tri_idx[verts] = ti
-        cdist[verts] = dd
-        radius[verts] = d[:, -1] if kk > k else np.inf
+        for kv in np.unique(k_rows[group]):
+            verts = group[k_rows[group] == kv]
+            kk = min(int(kv) + 1, len(allowed))
+            i, d = _nearest_triangles(body, faces, centroids, allowed, q[verts], kk)
+            use = min(int(kv), kk)
+            ti = np.empty((len(verts), k), dtype=np.int64)
+            dd = np.empty((len(verts), k))
+            ti[:, :use] = i[:, :use]
+            dd[:, :use] = d[:, :use]
+            if use < k:  # fewer candidates than k: repeat the last one (weight 0 below)
+                ti[:, use:] = i[:, use - 1:use]
+                dd[:, use:] = np.inf
+            tri_idx[verts] = ti
+            cdist[verts] = dd
+            radius[verts] = d[:, -1] if kk > kv else np.inf
 
     # smooth inverse-distance weights, 0 at the (k+1)-th candidate (Shepard/Franke)
     r = radius[:, None]
@@ -240,16 +314,39 @@ def _assemble(body: np.ndarray, faces: np.ndarray, q: np.ndarray, tri_idx: np.nd
     b = (g11 * r2 - g12 * r1) / det
     local = np.stack([a, b, c], axis=-1)
 
-    # sparse matrix: columns v1, v2, v3 (body) and N + t (normal vertex)
-    cols = np.concatenate([f[..., 0], f[..., 1], f[..., 2], n_body + tri_idx], axis=1)  # (M, 4k)
-    vals = np.concatenate([w * (1.0 - a - b - c), w * a, w * b, w * c], axis=1)
-    rows = np.repeat(np.arange(m), 4 * k)
-    mat = sp.csr_matrix((vals.ravel(), (rows, cols.ravel())), shape=(m, n_body + n_tri))
+    # the in-plane part from the closest point of the triangle (barycentric,
+    # follows the triangle's stretch) plus the rest in the triangle's
+    # orthonormal frame (turns with it, does not stretch): a vertex beyond a
+    # triangle's edge (a skirt's hem below the hips, a neighbour triangle's
+    # vertex) is not thrown by that triangle's local stretch times its
+    # distance in triangle sizes; inside the triangle this is the plain
+    # barycentric binding
+    v2, v3 = v1 + a1, v1 + a2
+    _, bary, _ = closest_point_on_triangles(q[:, None, :] - c[..., None] * nn, v1, v2, v3)
+    ac, bc = bary[..., 1], bary[..., 2]
+    res = dp - ac[..., None] * a1 - bc[..., None] * a2
+    _, t1, t2 = frame_from_edges(a1, a2)
+    r1 = np.einsum("mki,mki->mk", res, t1)
+    r2 = np.einsum("mki,mki->mk", res, t2)
+
+    # sparse matrix: columns v1, v2, v3 (body), N + t (normal vertex),
+    # N + T + t and N + 2T + t (tangent vertices)
+    cols = np.concatenate([f[..., 0], f[..., 1], f[..., 2], n_body + tri_idx, n_body + n_tri + tri_idx,
+                           n_body + 2 * n_tri + tri_idx], axis=1)  # (M, 6k)
+    vals = np.concatenate([w * (1.0 - ac - bc - c - r1 - r2), w * ac, w * bc, w * c, w * r1, w * r2], axis=1)
+    rows = np.repeat(np.arange(m), 6 * k)
+    mat = sp.csr_matrix((vals.ravel(), (rows, cols.ravel())), shape=(m, n_body + 3 * n_tri))
     mat.sum_duplicates()
     mat.eliminate_zeros()
     mat.sort_indices()
     used = np.unique(tri_idx[w > 0])
-    return Binding(matrix=mat, faces=faces, triangles=tri_idx, weights=w, local=local, used=used)
+    rcols = np.concatenate([f[..., 0], n_body + n_tri + tri_idx, n_body + 2 * n_tri + tri_idx], axis=1)
+    rvals = np.concatenate([-w * (r1 + r2), w * r1, w * r2], axis=1)
+    rest = sp.csr_matrix((rvals.ravel(), (np.repeat(np.arange(m), 3 * k), rcols.ravel())),
+                         shape=(m, n_body + 3 * n_tri))
+    rest.sum_duplicates()
+    rest.eliminate_zeros()
+    return Binding(matrix=mat, faces=faces, triangles=tri_idx, weights=w, local=local, used=used, rest=rest)
 
 
 def rebind(binding: Binding, body_points: np.ndarray, item_points: np.ndarray) -> Binding:

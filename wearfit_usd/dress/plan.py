@@ -37,6 +37,7 @@ from .corrections import LooseSmoother, looseness
 from .layers import layer_gaps, layer_order
 from .rigid_parts import RigidParts
 
+SKIRT_K = 60  # hip triangles each skirt-part vertex is bound to (see bind_items)
 FAR_FROM_BODY = 0.5  # m: items farther than this from the body are suspicious
 DEGENERATE_BODY_REL = 1e-10  # body triangles below this x the median doubled area are not bound to
 
@@ -313,7 +314,13 @@ def bind_items(body: Mesh, points: np.ndarray, labels: np.ndarray, regions: Body
     Skirt parts hang from the hips: they may only use torso triangles that the
     legs do not move (no leg skin weight), so spreading the legs neither tears
     nor swings them; the push-out pass then keeps the legs inside. Torso
-    vertices may still use hip triangles.
+    vertices may still use hip triangles. Skirt parts use ``SKIRT_K`` hip
+    triangles each: a hem hangs tens of centimetres below the hips, tens of
+    times the size of a hip triangle, and each triangle's frame extrapolates
+    that far; with a few triangles each, neighbouring hem vertices followed
+    different small patches (the left and right buttock) and a thinner body
+    split the skirt open at the back and pulled its hem into points. Blended
+    over a wide patch, the hem follows the hips' overall shape.
 
     Parameters
     ----------
@@ -337,7 +344,8 @@ def bind_items(body: Mesh, points: np.ndarray, labels: np.ndarray, regions: Body
     allowed = np.zeros((len(points), R.N_REGIONS + 1), dtype=bool)
     allowed[np.arange(len(points)), np.where(labels == R.HIPS, R.HIPS, labels)] = True
     allowed[:, R.HIPS] |= labels == R.TORSO
-    return bind(body.points, body.faces, points, k=k, candidate_mask=(mask_labels, allowed))
+    k_rows = np.where(labels == R.HIPS, max(int(k), SKIRT_K), int(k))
+    return bind(body.points, body.faces, points, k=k_rows, candidate_mask=(mask_labels, allowed))
 
 
 def reference_clearance(ref: Character, query: SurfaceQuery, items: list[Mesh], offsets: np.ndarray,
@@ -455,6 +463,11 @@ def find_rigid_groups(items: list[Mesh], offsets: np.ndarray, labels: np.ndarray
     return groups, names
 
 
+def _group_items(groups: list, items: list[Mesh], offsets: np.ndarray) -> list[str]:
+    """The item name of each rigid group."""
+    return [items[int(np.searchsorted(offsets, gv[0], side="right") - 1)].name for gv, *_ in groups]
+
+
 def loose_weights(items: list[Mesh], offsets: np.ndarray, skirts: list, clearance: np.ndarray,
                   groups: list) -> np.ndarray:
     """How much each vertex's displacement is smoothed (:func:`corrections.looseness`):
@@ -486,7 +499,7 @@ def loose_weights(items: list[Mesh], offsets: np.ndarray, skirts: list, clearanc
 
 def plan(ref: Character, k: int = 5, use_regions: bool = True, rigid="auto", auto_rigid: AutoRigid | None = None,
          far: float = FAR_FROM_BODY, strict_far: bool = False, regions: ItemRegions | None = None,
-         ref_clearance: np.ndarray | None = None) -> DressPlan:
+         ref_clearance: np.ndarray | None = None, free_items=()) -> DressPlan:
     """Bind every item of ``ref`` to its body (done once per reference).
 
     Parameters
@@ -517,6 +530,11 @@ def plan(ref: Character, k: int = 5, use_regions: bool = True, rigid="auto", aut
         authored on); default: measured on ``ref``. A posed reference passes
         its rest-pose clearance: posing moves rigid parts (a shoe over bending
         toes) through the skin, which is no reason to leave them there.
+    free_items : sequence of str
+        Items never moved rigidly (e.g. the ones a dressing released on this
+        body, :func:`repair.release_misfits`: bound freely, they deform with
+        the body under them; a shoe fitted to a body's bending low-poly foot
+        follows that foot, where a rigid one comes off it at the toes).
 
     Returns
     -------
@@ -545,6 +563,11 @@ def plan(ref: Character, k: int = 5, use_regions: bool = True, rigid="auto", aut
     mesh = stacked_mesh(items, offsets)
     rigid_groups, rigid_items = find_rigid_groups(items, offsets, item_regions.vertex, ref_clear, binding, body,
                                                   rigid, auto_rigid or AutoRigid())
+    if free_items:
+        keep = [(gv, item) for gv, item in zip(rigid_groups, _group_items(rigid_groups, items, offsets))
+                if item not in free_items]
+        rigid_groups = [g for g, _ in keep]
+        rigid_items = [n for n in rigid_items if n not in free_items]
     loose = loose_weights(items, offsets, skirts, ref_clear, rigid_groups)
     t3 = time.perf_counter()
     order = [(i, j, g) for i, j, g in layer_order(items, offsets, pts, ref_clear)

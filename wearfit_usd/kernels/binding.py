@@ -46,15 +46,54 @@ def _csr_times_rows3(indptr, indices, data, x, out):
 @jit
 def _fill_stacked(points, used_faces, buf):
     """buf (N + U, 3) = [body points (N, 3); normal vertices v1 + unit normal
-    of the used triangles (U, 3)]: what a binding matrix multiplies."""
+    of the used triangles (U, 3)]: what a binding matrix multiplies. A buf of
+    N + 3U rows also gets the tangent vertices v1 + t1 (U, 3) and v1 + t2
+    (U, 3): t1 the unit bisector of the two edges at v1, t2 = n x t1 (an
+    orthonormal frame that turns with the triangle and does not stretch with
+    it)."""
     n = points.shape[0]
+    nu = used_faces.shape[0]
     for i in range(n):
         buf[i, 0] = points[i, 0]
         buf[i, 1] = points[i, 1]
         buf[i, 2] = points[i, 2]
-    face_normals_into(points, used_faces, True, buf[n:])
-    for u in range(used_faces.shape[0]):
+    face_normals_into(points, used_faces, True, buf[n:n + nu])
+    tangents = buf.shape[0] >= n + 3 * nu
+    for u in range(nu):
         i0 = used_faces[u, 0]
+        if tangents:
+            i1 = used_faces[u, 1]
+            i2 = used_faces[u, 2]
+            ax = points[i1, 0] - points[i0, 0]
+            ay = points[i1, 1] - points[i0, 1]
+            az = points[i1, 2] - points[i0, 2]
+            la = np.sqrt(ax * ax + ay * ay + az * az)
+            bx = points[i2, 0] - points[i0, 0]
+            by = points[i2, 1] - points[i0, 1]
+            bz = points[i2, 2] - points[i0, 2]
+            lb = np.sqrt(bx * bx + by * by + bz * bz)
+            if la < 1e-300:
+                la = 1.0
+            if lb < 1e-300:
+                lb = 1.0
+            ex = ax / la + bx / lb
+            ey = ay / la + by / lb
+            ez = az / la + bz / lb
+            le = np.sqrt(ex * ex + ey * ey + ez * ez)
+            if le < 1e-300:
+                le = 1.0
+            ex /= le
+            ey /= le
+            ez /= le
+            nx = buf[n + u, 0]
+            ny = buf[n + u, 1]
+            nz = buf[n + u, 2]
+            buf[n + nu + u, 0] = points[i0, 0] + ex
+            buf[n + nu + u, 1] = points[i0, 1] + ey
+            buf[n + nu + u, 2] = points[i0, 2] + ez
+            buf[n + 2 * nu + u, 0] = points[i0, 0] + ny * ez - nz * ey
+            buf[n + 2 * nu + u, 1] = points[i0, 1] + nz * ex - nx * ez
+            buf[n + 2 * nu + u, 2] = points[i0, 2] + nx * ey - ny * ex
         buf[n + u, 0] += points[i0, 0]
         buf[n + u, 1] += points[i0, 1]
         buf[n + u, 2] += points[i0, 2]
@@ -164,11 +203,42 @@ def _csr(indptr, indices, data, n_cols: int) -> sp.csr_matrix:
     return sp.csr_matrix((data, indices, indptr), shape=(len(indptr) - 1, n_cols))
 
 
+def tangent_frames_numpy(points: np.ndarray, faces: np.ndarray):
+    """Unit normal n, t1 the unit bisector of the two edges at the first
+    corner and t2 = n x t1 of triangles (..., T, 3) for points (..., N, 3)
+    (the bisector turns about half as much as one edge under a shear)."""
+    v1 = points[..., faces[:, 0], :]
+    e1 = points[..., faces[:, 1], :] - v1
+    e2 = points[..., faces[:, 2], :] - v1
+    return frame_from_edges(e1, e2)
+
+
+def frame_from_edges(e1: np.ndarray, e2: np.ndarray):
+    """:func:`tangent_frames_numpy` from the edges e1 = v2 - v1, e2 = v3 - v1 (..., 3)."""
+    n = np.cross(e1, e2)
+    ln = np.sqrt(np.einsum("...i,...i->...", n, n))
+    n = n / np.where(ln < 1e-300, 1.0, ln)[..., None]
+    l1 = np.sqrt(np.einsum("...i,...i->...", e1, e1))
+    l2 = np.sqrt(np.einsum("...i,...i->...", e2, e2))
+    t1 = e1 / np.where(l1 < 1e-300, 1.0, l1)[..., None] + e2 / np.where(l2 < 1e-300, 1.0, l2)[..., None]
+    lt = np.sqrt(np.einsum("...i,...i->...", t1, t1))
+    t1 = t1 / np.where(lt < 1e-300, 1.0, lt)[..., None]
+    return n, t1, np.cross(n, t1)
+
+
 def fill_stacked_numpy(points: np.ndarray, used_faces: np.ndarray, buf: np.ndarray) -> None:
-    """buf (N + U, 3) = [points (N, 3); v1 + unit normal of used_faces (U, 3)]."""
-    n = len(points)
+    """buf (N + U, 3) = [points (N, 3); v1 + unit normal of used_faces (U, 3)];
+    a buf of N + 3U rows also gets v1 + t1 and v1 + t2 (see :func:`_fill_stacked`)."""
+    n, nu = len(points), len(used_faces)
     buf[:n] = points
-    buf[n:] = points[used_faces[:, 0]] + face_normals_numpy(points, used_faces, unit=True)
+    v1 = points[used_faces[:, 0]]
+    if len(buf) >= n + 3 * nu:
+        nrm, t1, t2 = tangent_frames_numpy(points, used_faces)
+        buf[n:n + nu] = v1 + nrm
+        buf[n + nu:n + 2 * nu] = v1 + t1
+        buf[n + 2 * nu:n + 3 * nu] = v1 + t2
+    else:
+        buf[n:n + nu] = v1 + face_normals_numpy(points, used_faces, unit=True)
 
 
 def binding_eval_numpy(points: np.ndarray, used_faces: np.ndarray, matrix, buf: np.ndarray) -> np.ndarray:
