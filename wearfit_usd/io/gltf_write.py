@@ -18,7 +18,7 @@ clips resolved by USD), and writes one ``.glb``:
   Node animation cannot deform a mesh, and re-deriving skin weights for a
   cloth cache would lose its dynamics: morph targets keep it exactly. An
   item present both as a skinned mesh and as a point cache (``--items both``)
-  is written once, skinned;
+  is written once, skinned (same prim name and topology, or same points);
 * one material per mesh: ``baseColorFactor`` from the bound
   ``UsdPreviewSurface``'s ``diffuseColor`` (its ``opacity``, ``metallic``
   and ``roughness`` too), ``baseColorTexture`` when ``diffuseColor`` is
@@ -258,9 +258,9 @@ def export_scene(scene, out, morph_every: int = 1, max_frames: int | None = None
         if m.joint_indices is not None:
             continue
         for s_ in skinned_items:  # the same item also written skinned (--items both): keep that one
-            if (len(s_.faces) == len(m.faces) and s_.n_points == m.n_points
-                    and np.array_equal(s_.faces, m.faces)
-                    and np.abs(s_.points - m.points).max() < 1e-3):
+            same_name = s_.path.rsplit("/", 1)[-1] == m.path.rsplit("/", 1)[-1]
+            if (s_.n_points == m.n_points and np.array_equal(s_.faces, m.faces)
+                    and (same_name or np.abs(s_.points - m.points).max() < 1e-3)):
                 drop.add(m.path)
     figures = {"meshes": 0, "skinned": 0, "morphed": 0, "morph_targets": 0, "textures": 0}
     morph_times = times[::morph_every]
@@ -294,8 +294,9 @@ def export_scene(scene, out, morph_every: int = 1, max_frames: int | None = None
                                                         "roughness": 0.8, "texture": None, "name": None},
                                   mesh.name, uv is not None, figures)
         primitive = pygltflib.Primitive(attributes=attrs, indices=idx, material=mat_index, mode=4)
-        gmesh = pygltflib.Mesh(name=mesh.name, primitives=[primitive])
-        node = pygltflib.Node(name=mesh.name, mesh=len(g.meshes))
+        name = mesh.path.rsplit("/", 1)[-1] or mesh.name  # the prim's name (read_character numbers duplicates)
+        gmesh = pygltflib.Mesh(name=name, primitives=[primitive])
+        node = pygltflib.Node(name=name, mesh=len(g.meshes))
         g.meshes.append(gmesh)
         g.nodes.append(node)
         roots.append(len(g.nodes) - 1)
