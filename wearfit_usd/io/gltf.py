@@ -346,7 +346,7 @@ class _RawMesh:
             for src, dst in ((a.TEXCOORD_0, uv0), (a.TEXCOORD_1, uv1)):
                 dst.append(None if src is None else doc.accessor(src).astype(np.float64))
             c = _material_color(doc, prim.material)
-            tri_color.append(np.tile(c if c is not None else [0.8, 0.8, 0.8], (len(f), 1)))
+            tri_color.append(np.tile(c if c is not None else [np.nan] * 3, (len(f), 1)))
             if skinned:
                 sets = [(a.JOINTS_0, a.WEIGHTS_0), (getattr(a, "JOINTS_1", None), getattr(a, "WEIGHTS_1", None))]
                 js, ws = [], []
@@ -372,7 +372,13 @@ class _RawMesh:
         self.points = self.morphed(self.default_weights)
         self.faces = np.concatenate(faces)
         self.tri_color = np.concatenate(tri_color)
-        self.colors_differ = bool(np.ptp(self.tri_color, axis=0).max() > 1e-6)
+        # faces without a material: no colour of their own (NaN); glTF's default material is white
+        if np.isnan(self.tri_color).all():
+            self.tri_color = None
+            self.colors_differ = False
+        else:
+            self.tri_color = np.where(np.isnan(self.tri_color), 1.0, self.tri_color)
+            self.colors_differ = bool(np.ptp(self.tri_color, axis=0).max() > 1e-6)
         self.uv = [None if any(u is None for u in uvs) else np.concatenate(uvs) for uvs in (uv0, uv1)]
         self.skin = node.skin
         if skinned:
@@ -401,7 +407,8 @@ def _to_model_mesh(doc, raw: _RawMesh, points: np.ndarray, flip: bool) -> Mesh:
             primvars.append(Primvar(name, "texCoord2f[]", "vertex", st))
     area = 0.5 * np.linalg.norm(np.cross(points[faces[:, 1]] - points[faces[:, 0]],
                                          points[faces[:, 2]] - points[faces[:, 0]]), axis=1)
-    color = (raw.tri_color * area[:, None]).sum(0) / max(area.sum(), 1e-300)
+    color = None if raw.tri_color is None else \
+        (raw.tri_color * area[:, None]).sum(0) / max(area.sum(), 1e-300)
     if raw.colors_differ:
         primvars.append(Primvar("displayColor", "color3f[]", "uniform", raw.tri_color.astype(np.float32)))
     n = len(faces)

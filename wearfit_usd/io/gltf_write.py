@@ -90,14 +90,14 @@ class _Blob:
 # reading the scene (USD)
 
 def _material(prim, fallback_color, scene_path):
-    """{color (4,), metallic, roughness, texture (path or None)} of the
-    UsdPreviewSurface bound to ``prim``."""
+    """{color (4,), metallic, roughness, texture (path or None), name} of the
+    UsdPreviewSurface bound to ``prim`` (else its displayColor; None without either)."""
     from pxr import UsdShade
     out = {"color": np.r_[fallback_color if fallback_color is not None else [0.8, 0.8, 0.8], 1.0],
            "metallic": 0.0, "roughness": 0.8, "texture": None, "name": None}
     mat, _ = UsdShade.MaterialBindingAPI(prim).ComputeBoundMaterial()
     if not mat:
-        return out
+        return out if fallback_color is not None else None
     out["name"] = mat.GetPrim().GetName()
     surf = mat.ComputeSurfaceSource()[0]
     if not surf or surf.GetIdAttr().Get() != "UsdPreviewSurface":
@@ -290,9 +290,9 @@ def export_scene(scene, out, morph_every: int = 1, max_frames: int | None = None
         idx = blob.add(tris.astype(np.uint16 if idx_type == UINT16 else np.uint32).ravel()[:, None],
                        "SCALAR", idx_type, ELEMENT_ARRAY_BUFFER)
         material = _material(prim, mesh.display_color, scene) if prim is not None else None
-        mat_index = _add_material(g, blob, material or {"color": np.r_[0.8, 0.8, 0.8, 1.0], "metallic": 0.0,
-                                                        "roughness": 0.8, "texture": None, "name": None},
-                                  mesh.name, uv is not None, figures)
+        # no material and no displayColor: none written (viewers use their default, wearfit its item colours)
+        mat_index = None if material is None else _add_material(g, blob, material, mesh.name, uv is not None,
+                                                                 figures)
         primitive = pygltflib.Primitive(attributes=attrs, indices=idx, material=mat_index, mode=4)
         name = mesh.path.rsplit("/", 1)[-1] or mesh.name  # the prim's name (read_character numbers duplicates)
         gmesh = pygltflib.Mesh(name=name, primitives=[primitive])
