@@ -240,3 +240,51 @@ def test_export_validates_and_round_trips(demo_scenes, tmp_path, which):
         for f in range(n):
             d, _ = cKDTree(frames[k][f]).query(m.frames[f])
             assert d.max() < 1e-5, (m.name, f, d.max())
+
+
+def test_export_materials_and_texture(tmp_path):
+    """baseColor from the UsdPreviewSurface's diffuseColor; a diffuseColor read
+    from a UsdUVTexture file is embedded as the baseColorTexture; face-varying
+    UVs split vertices on their seams."""
+    from PIL import Image
+    from pxr import Sdf, Usd, UsdGeom, UsdShade
+
+    from tests.tiny_stage import write_tiny
+    scene = write_tiny(tmp_path / "tiny.usda")
+    Image.new("RGB", (4, 4), (200, 30, 30)).save(tmp_path / "red.png")
+    stage = Usd.Stage.Open(str(scene))
+    scarf = stage.GetPrimAtPath("/Root/Scarf")
+    n_corners = len(UsdGeom.Mesh(scarf).GetFaceVertexIndicesAttr().Get())
+    st = UsdGeom.PrimvarsAPI(scarf).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray,
+                                                  UsdGeom.Tokens.faceVarying)
+    st.Set([(i / n_corners, 0.5) for i in range(n_corners)])
+    for name, prim, tex in (("Skin", stage.GetPrimAtPath("/Root/Character/Body"), None), ("Cloth", scarf, "red.png")):
+        mat = UsdShade.Material.Define(stage, f"/Root/Looks/{name}")
+        surf = UsdShade.Shader.Define(stage, f"/Root/Looks/{name}/Surface")
+        surf.CreateIdAttr("UsdPreviewSurface")
+        col = surf.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f)
+        if tex:
+            t = UsdShade.Shader.Define(stage, f"/Root/Looks/{name}/Tex")
+            t.CreateIdAttr("UsdUVTexture")
+            t.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(tex)
+            col.ConnectToSource(t.ConnectableAPI(), "rgb")
+        else:
+            col.Set((0.1, 0.5, 0.9))
+        surf.CreateInput("roughness", Sdf.ValueTypeNames.Float).Set(0.3)
+        mat.CreateSurfaceOutput().ConnectToSource(surf.ConnectableAPI(), "surface")
+        UsdShade.MaterialBindingAPI.Apply(prim).Bind(mat)
+    stage.GetRootLayer().Save()
+    glb = tmp_path / "tiny.glb"
+    assert main(["export", str(scene), "-o", str(glb), "-q"]) == 0
+    g = pygltflib.GLTF2().load(str(glb))
+    mats = {m.name: m.pbrMetallicRoughness for m in g.materials}
+    np.testing.assert_allclose(mats["Skin"].baseColorFactor, [0.1, 0.5, 0.9, 1.0], atol=1e-6)
+    assert mats["Skin"].roughnessFactor == pytest.approx(0.3) and mats["Skin"].baseColorTexture is None
+    assert mats["Cloth"].baseColorTexture is not None and len(g.images) == 1
+    assert g.images[0].mimeType == "image/png"
+    scarf_mesh = next(m for m in g.meshes if m.name == "Scarf")
+    assert g.accessors[scarf_mesh.primitives[0].attributes.POSITION].count == n_corners  # every corner its UV
+    if shutil.which("node") and VALIDATOR.exists():
+        assert _validate(glb)["numErrors"] == 0
+    back = read_character(glb)
+    np.testing.assert_allclose(back.body.display_color, [0.1, 0.5, 0.9], atol=1e-6)
