@@ -110,6 +110,15 @@ def test_two_joint_skin_known_answers(tmp_path):
                                nodes.body.points, atol=1e-9)
 
 
+def test_gltf_json_with_embedded_buffer(tmp_path):
+    g = pygltflib.GLTF2().load(str(_two_joint_glb(tmp_path / "two.glb")))
+    g.convert_buffers(pygltflib.BufferFormat.DATAURI)
+    g.save_json(str(tmp_path / "two.gltf"))
+    a = read_character(tmp_path / "two.gltf")
+    b = read_character(tmp_path / "two.glb")
+    assert np.array_equal(a.body.points, b.body.points) and a.skeleton.joint_names == b.skeleton.joint_names
+
+
 def test_second_influence_set(tmp_path):
     c = read_gltf_character(_two_joint_glb(tmp_path / "eight.glb", eight=True), pose="nodes")
     assert c.body.joint_weights.shape[1] == 8
