@@ -20,6 +20,7 @@
 #   With 2 and 4 `wearfit` is linked onto PATH to .venv/bin/wearfit: ~/.local/bin/wearfit for a
 #   user who has ~/.local/bin on PATH, else /usr/local/bin/wearfit (with sudo for a user).
 # Then PyOpenGL 3.1.10: pyrender 0.1.45 pins PyOpenGL 3.1.0, which cannot create OSMesa contexts.
+# Then, when npm exists, the Khronos glTF-Validator (npm gltf-validator) into .tools/ for the tests.
 set -euo pipefail
 cd "$(dirname "$0")"
 ROOT="$PWD"
@@ -146,6 +147,14 @@ PIP=("$PY" -m pip)
 "$PY" -c "import wearfit_usd, pxr, pyrender; print('wearfit_usd installed')"
 # compile the numba kernels once now (cached beside the package), not on the first run
 "$PY" -m wearfit_usd.kernels
+# the Khronos glTF-Validator (a test checks `wearfit export` against it) into .tools/, when npm exists
+if command -v npm >/dev/null; then
+    mkdir -p "$ROOT/.tools"
+    (cd "$ROOT/.tools" && npm install --no-audit --no-fund --silent gltf-validator@2.0.0-dev.3.10 >/dev/null) ||
+        say "warning: npm could not install gltf-validator; the glTF validation test will not run"
+else
+    say "no npm: the glTF validation test will not run (apt-get install nodejs npm, then ./install.sh)"
+fi
 # byte-compile the package as pip does for regular installs (an editable install
 # skips it; with PYTHONDONTWRITEBYTECODE set every run would compile it again)
 "$PY" -m compileall -q wearfit_usd

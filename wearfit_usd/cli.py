@@ -19,9 +19,10 @@ import warnings
 
 from . import __version__
 from .errors import WearfitError
+from .io.gltf import set_default_pose as set_gltf_pose
 from .progress import set_verbosity
 
-COMMANDS = ["inspect", "fit", "dress", "animate", "render", "demo", "batch"]
+COMMANDS = ["inspect", "fit", "dress", "animate", "render", "export", "demo", "batch"]
 
 
 def common_options() -> argparse.ArgumentParser:
@@ -32,6 +33,10 @@ def common_options() -> argparse.ArgumentParser:
                    help="no progress bars or messages (warnings and errors still shown)")
     g.add_argument("-v", "--verbose", action="store_true", default=argparse.SUPPRESS,
                    help="more detail; show tracebacks on errors")
+    p.add_argument("--gltf-pose", metavar="POSE", default=argparse.SUPPRESS,
+                   help=".glb/.gltf characters: the rest pose to read them in: auto (default: of the bind "
+                        "pose, the nodes' pose and the animations' first frames, the one closest to the "
+                        "references' rest pose), bind (inverse bind matrices), nodes, or an animation's name")
     return p
 
 
@@ -120,6 +125,7 @@ def main(argv: list[str] | None = None) -> int:
     quiet = getattr(args, "quiet", False)
     verbose = getattr(args, "verbose", False)
     set_verbosity(0 if quiet else (2 if verbose else 1))
+    set_gltf_pose(getattr(args, "gltf_pose", None))
     if not getattr(args, "command", None):
         parser.print_help()
         return 2

@@ -16,7 +16,7 @@ def register(sub, common):
                        description="Print what a USD stage (skeleton, skinned body, items, skin-weight "
                                    "statistics, up axis, units, time range) or a BVH clip (joints, "
                                    "channels, rotation orders, frames, fps, units) holds.")
-    p.add_argument("file", help="a .usd/.usda/.usdc/.usdz stage or a .bvh clip")
+    p.add_argument("file", help="a .usd/.usda/.usdc/.usdz stage, a .glb/.gltf character or a .bvh clip")
     p.add_argument("--json", action="store_true", help="print machine-readable JSON instead of text")
     p.add_argument("--joints", action="store_true", help="list every joint")
     p.add_argument("--bvh-scale", type=bounded_float(0.0, 1e3), default=None,
@@ -47,18 +47,19 @@ def skin_weight_stats(mesh, n_joints: int) -> dict:
 def describe_usd(path: Path) -> dict:
     from pxr import UsdGeom
 
+    from ..io.gltf import is_gltf
     from ..io.usd import open_stage, read_character
-    stage = open_stage(path)
+    stage = None if is_gltf(path) else open_stage(path)
     char = read_character(path, require_skeleton=False)
     info = {
         "file": str(path),
-        "kind": "usd",
+        "kind": "gltf" if stage is None else "usd",
         "up_axis": char.up_axis,
         "meters_per_unit": char.meters_per_unit,
-        "time_codes_per_second": stage.GetTimeCodesPerSecond(),
-        "frames_per_second": stage.GetFramesPerSecond(),
-        "start_time_code": stage.GetStartTimeCode(),
-        "end_time_code": stage.GetEndTimeCode(),
+        "time_codes_per_second": char.time_codes_per_second if stage is None else stage.GetTimeCodesPerSecond(),
+        "frames_per_second": char.time_codes_per_second if stage is None else stage.GetFramesPerSecond(),
+        "start_time_code": 0.0 if stage is None else stage.GetStartTimeCode(),
+        "end_time_code": 0.0 if stage is None else stage.GetEndTimeCode(),
     }
     lo, hi = char.body.points.min(0), char.body.points.max(0)
 
@@ -82,6 +83,11 @@ def describe_usd(path: Path) -> dict:
     else:
         info["skeleton"] = None
     info["items"] = [mesh_info(m) for m in char.items]
+    if stage is None:
+        from ..io.gltf import animation_names
+        info["animations"] = animation_names(path)
+        info["meshes_with_time_sampled_points"] = 0
+        return info
     anim = [str(p.GetPath()) for p in stage.Traverse() if p.GetTypeName() == "SkelAnimation"]
     info["animations"] = anim
     timesampled = 0
@@ -210,10 +216,10 @@ def run(args) -> int:
         raise InputError(path, "file not found")
     if path.suffix.lower() == ".bvh":
         info = describe_bvh(path, args.bvh_scale)
-    elif path.suffix.lower() in (".usd", ".usda", ".usdc", ".usdz"):
+    elif path.suffix.lower() in (".usd", ".usda", ".usdc", ".usdz", ".glb", ".gltf"):
         info = describe_usd(path)
     else:
-        raise InputError(path, "unknown file type (expected .usd, .usda, .usdc, .usdz or .bvh)")
+        raise InputError(path, "unknown file type (expected .usd, .usda, .usdc, .usdz, .glb, .gltf or .bvh)")
     pairing = describe_pairing(path, Path(args.map_other), args.bvh_scale) if args.map_other else None
     if args.json:
         if pairing is not None:

@@ -15,7 +15,7 @@ def register(sub, common):
                     "(DIR/frame_0000.png ...) and DIR/contact_sheet.png, optionally "
                     "DIR/preview.gif and DIR/preview.mp4. The camera frames the character over "
                     "all rendered frames, or follows it when it travels (see --track).")
-    p.add_argument("scene", help="a .usd/.usda/.usdc/.usdz stage")
+    p.add_argument("scene", help="a .usd/.usda/.usdc/.usdz stage or a .glb/.gltf file")
     p.add_argument("-o", "--out", required=True, metavar="DIR", help="output folder")
     p.add_argument("--frames", metavar="A:B", default=None,
                    help="time codes to render, inclusive (A:B, A:, :B or A); default the "

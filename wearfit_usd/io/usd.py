@@ -24,6 +24,7 @@ from ..model import Character, Mesh, Primvar, Skeleton, merge_meshes
 from ..progress import info, warn
 from ..transforms import invert, stage_to_internal, transform_points
 from .atomic import atomic_output
+from .gltf import is_gltf, read_gltf_character
 from .usd_author import StageLayout, author_body, author_skeleton, author_static_item
 
 _SKIP_PRIMVARS = {"skel:jointIndices", "skel:jointWeights", "skel:geomBindTransform",
@@ -293,7 +294,8 @@ def find_skinned_meshes(stage):
 
 def read_character(path, body_path: str | None = None, item_paths: list[str] | None = None,
                    require_skeleton: bool = True) -> Character:
-    """Read a rigged body and its wearable items from a USD file.
+    """Read a rigged body and its wearable items from a USD file (or a
+    ``.glb``/``.gltf`` file, through :func:`.gltf.read_gltf_character`).
 
     body_path: prim path of the body mesh (default: the skinned mesh with most
         points). item_paths: prim paths of the items (default: every other
@@ -301,7 +303,10 @@ def read_character(path, body_path: str | None = None, item_paths: list[str] | N
         is accepted: the largest mesh becomes the body and ``skeleton`` is None.
     """
     try:
-        char = _read_character(path, body_path, item_paths, require_skeleton)
+        if is_gltf(path):  # .glb / .gltf characters (io.gltf)
+            char = read_gltf_character(path, body_path, item_paths, require_skeleton)
+        else:
+            char = _read_character(path, body_path, item_paths, require_skeleton)
     except InputError:
         raise
     except Exception as exc:

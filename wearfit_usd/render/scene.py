@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError, USDInputError
+from ..io.gltf import is_gltf, read_gltf_frames
 from ..transforms import stage_to_internal, transform_points
 from .lighting import BODY_COLOR, item_colors
 
@@ -221,6 +222,8 @@ def read_scene(path, frames=None, progress_desc: str | None = None) -> SceneDesc
     p = Path(path)
     if not p.exists():
         raise InputError(path, "file not found")
+    if is_gltf(p):
+        return _gltf_scene(p, frames)
     stage = open_stage(p)
     up = str(UsdGeom.GetStageUpAxis(stage))
     mpu = float(UsdGeom.GetStageMetersPerUnit(stage))
@@ -326,3 +329,28 @@ def read_scene(path, frames=None, progress_desc: str | None = None) -> SceneDesc
     return SceneDescription(source=str(path), up_axis=up, meters_per_unit=mpu, times=times,
                             time_range=time_range, fps=float(stage.GetTimeCodesPerSecond()),
                             meshes=out_meshes)
+
+
+def _gltf_scene(path: Path, frames) -> SceneDescription:
+    """A ``.glb``/``.gltf`` file as a scene: its first animation (all of it,
+    then the frames asked for) sampled at
+    the file's frame rate (time code = frame index), else one frame in the
+    pose :func:`wearfit_usd.io.gltf.read_gltf_character` reads."""
+    char, all_frames, fps, n_total = read_gltf_frames(path)
+    times = select_times((0.0, float(n_total - 1)), frames, path)
+    mesh_frames = [[fr[int(t)] for t in times] for fr in all_frames]
+    order = [char.body] + list(char.items)
+    colors = iter(item_colors([m.name for m in char.items]))
+    out = []
+    for k, (m, fr) in enumerate(zip(order, mesh_frames)):
+        role = "body" if k == 0 else "item"
+        default = np.asarray(BODY_COLOR if role == "body" else next(colors), dtype=np.float64)
+        for i in range(1, len(fr)):  # unchanged frames share one array (the renderer skips re-uploads)
+            if np.array_equal(fr[i], fr[i - 1]):
+                fr[i] = fr[i - 1]
+        authored = m.display_color
+        out.append(SceneMesh(name=m.name, path=m.path, role=role, faces=m.faces, frames=fr,
+                             color=np.clip(authored, 0, 1) if authored is not None else default,
+                             color_authored=authored is not None, skinned=m.is_skinned))
+    return SceneDescription(source=str(path), up_axis="Y", meters_per_unit=1.0, times=times,
+                            time_range=(0.0, float(n_total - 1)), fps=fps, meshes=out)
