@@ -7,14 +7,18 @@ Shared intermediate results, each computed once per batch:
 - ``fit``: the reference body fitted onto each target once
   (:func:`~wearfit_usd.fit.body_fit.fit_character`), used by the ``fit`` and the
   ``dress`` products, and cached on disk;
-- the dressing plan of each reference (:func:`~wearfit_usd.dress.plan.plan`)
-  is built once per worker process and reused by every target that worker
-  dresses (a plan holds a CHOLMOD factor, which cannot be pickled, so it
-  cannot travel between processes);
+- the dressing plan of each reference (:func:`~wearfit_usd.dress.plan.plan`):
+  a plan holds a CHOLMOD factor, which cannot be pickled, so it cannot travel
+  between processes; instead every task that needs it (``dress`` and
+  ``animate``, every target and clip) is pinned to one worker per reference
+  (:func:`assign_owners`; Dask's loose restrictions, so a lost worker's tasks
+  still move elsewhere), which builds the plan once and keeps it
+  (:func:`_plan_of`). Each record says whether its task built the plan
+  (``plan_built``); the report sums them;
 - ``preview`` renders the dressed target of the ``dress`` product.
 
 ``animate`` dresses each clip's first-frame pose itself (as ``wearfit animate``
-does) from the shared reads.
+does) from the shared reads and the reference's plan.
 
 Products are skipped entirely when their cached result is complete (with
 ``resume``); the intermediates are only submitted when some product needs them.
@@ -199,8 +203,9 @@ def task_dress(reference, target, fit, plan_key: str, meta: dict) -> dict:
     return _record(meta, t, obj, figures, plan_built=built)
 
 
-def task_animate(reference, target, meta: dict) -> dict:
-    """One shot (as ``wearfit animate``), streamed to the cache."""
+def task_animate(reference, target, plan_key: str, meta: dict) -> dict:
+    """One shot (as ``wearfit animate``), streamed to the cache, on this
+    worker's plan of the reference."""
     obj = Cache(meta["cache_root"]).object_path(meta["key"], meta["suffix"])
     with _Task(f"animating {meta['id']}") as t:
         clip = meta["clip"]
@@ -209,13 +214,14 @@ def task_animate(reference, target, meta: dict) -> dict:
         motion = read_bvh(clip["path"])
         opts = AnimateOptions(k=meta["k"], start=clip["start"], end=clip["end"], fps=meta["fps"],
                               measure_every=meta["measure_every"])
-        rep = animate(reference, target, motion, obj, opts)
+        p, built = _plan_of(reference, plan_key, meta["k"])
+        rep = animate(reference, target, motion, obj, opts, ref_plan=p)
         figures = {"frames": rep.frames, "fps": rep.fps,
                    "worst_frame_new_penetration_pct": 100 * rep.worst_frame_penetration,
                    "mean_new_penetration_pct": (100 * sum(rep.per_frame_penetration) / len(rep.per_frame_penetration)
                                                 if rep.per_frame_penetration else None),
                    "timings_s": {k: v for k, v in rep.timings.items() if not isinstance(v, dict)}}
-    return _record(meta, t, obj, figures)
+    return _record(meta, t, obj, figures, plan_built=built)
 
 
 def task_preview(dressed, meta: dict) -> dict:
@@ -226,7 +232,9 @@ def task_preview(dressed, meta: dict) -> dict:
     with _Task(f"rendering {meta['id']}") as t:
         images = render_frames(src, size=tuple(meta["size"]), camera="front", show_progress=False)
         write_png(images[0], obj)
-    return _record(meta, t, obj, {"size": meta["size"]})
+    # a dressing made for this preview only (no dress job) counts its plan here
+    built = bool(meta.get("own_dress") and isinstance(dressed, dict) and dressed.get("plan_built"))
+    return _record(meta, t, obj, {"size": meta["size"]}, plan_built=built)
 
 
 # ----------------------------------------------------------------------------
@@ -259,6 +267,40 @@ def _job_key(job: Job, digests: dict, opts: dict) -> str:
 
 
 MEASURE_EVERY = 5  # exact penetration figures of a shot every N frames (does not change the shot)
+PLANNED = ("dress", "animate", "preview")  # products whose tasks need the reference's plan (preview: its dressing)
+
+
+def assign_owners(jobs: list[Job], workers: list[str]) -> dict[Path, str]:
+    """The worker that builds and uses each reference's dressing plan.
+
+    References are dealt out heaviest first to the least loaded worker, the
+    load being the number of jobs that need the plan (``dress``, ``animate``
+    and the dressing behind a ``preview``); ties go to the worker listed first.
+
+    Parameters
+    ----------
+    jobs : list of Job
+        The jobs to run.
+    workers : list of str
+        Worker addresses (sorted by the caller for a reproducible deal).
+
+    Returns
+    -------
+    dict
+        ``{reference path: worker address}``; empty without workers.
+    """
+    if not workers:
+        return {}
+    load: dict[Path, int] = {}
+    for j in jobs:
+        load[j.reference] = load.get(j.reference, 0) + (j.product in PLANNED)
+    busy = dict.fromkeys(workers, 0)
+    owners = {}
+    for ref in sorted(load, key=lambda r: -load[r]):  # stable: file order among equals
+        w = min(workers, key=lambda a: busy[a])
+        owners[ref] = w
+        busy[w] += load[ref]
+    return owners
 
 
 def run_batch(jobset: JobSet, outdir, client, resume: bool = False, previews: bool = True,
@@ -350,7 +392,17 @@ def run_batch(jobset: JobSet, outdir, client, resume: bool = False, previews: bo
                     fps=opts["fps"], size=opts["preview_size"], measure_every=MEASURE_EVERY)
 
     plan_keys = {r: result_key("plan", [digests[r]], {"k": opts["k"]}) for r in digests}
-    futures = {}
+    # each reference's planned tasks on one worker (loose: elsewhere if it is lost), submitted
+    # reference by reference so a worker owning several finishes one plan's tasks first
+    owners = assign_owners([j for j, _ in todo], sorted(client.scheduler_info().get("workers", {})))
+    order = {r: i for i, r in enumerate(dict.fromkeys(j.reference for j in jobs))}
+    todo.sort(key=lambda jk: order[jk[0].reference])
+
+    def pinned(job: Job) -> dict:
+        w = owners.get(job.reference)
+        return {"workers": [w], "allow_other_workers": True} if w else {}
+
+    futures, own_dress = {}, set()
     for job, key in todo:
         name = f"{job.product}-{job.name}-{key[:8]}-{run}"
         ref, tgt = read(job.reference, "reference"), None
@@ -360,10 +412,11 @@ def run_batch(jobset: JobSet, outdir, client, resume: bool = False, previews: bo
             f = client.submit(task_fit_product, ref, tgt, fit(job), meta(job, key), pure=False, key=name)
         elif job.product == "dress":
             f = client.submit(task_dress, ref, tgt, fit(job), plan_keys[job.reference], meta(job, key),
-                              pure=False, key=name)
+                              pure=False, key=name, **pinned(job))
             dressed[job.reference, job.target] = f
         elif job.product == "animate":
-            f = client.submit(task_animate, ref, tgt, meta(job, key), pure=False, key=name)
+            f = client.submit(task_animate, ref, tgt, plan_keys[job.reference], meta(job, key), pure=False,
+                              key=name, **pinned(job))
         else:
             continue
         futures[f] = job
@@ -386,9 +439,11 @@ def run_batch(jobset: JobSet, outdir, client, resume: bool = False, previews: bo
                     src = client.submit(task_dress, read(job.reference, "reference"), read(job.target, "target"),
                                         fit(djob), plan_keys[job.reference],
                                         dict(meta(job, dkey), id=djob.id, product="dress"), pure=False,
-                                        key=f"dress-{djob.name}-{dkey[:8]}-{run}")
+                                        key=f"dress-{djob.name}-{dkey[:8]}-{run}", **pinned(job))
+                    own_dress.add(pair)
             dressed[pair] = src
-        f = client.submit(task_preview, src, meta(job, key), pure=False, key=f"preview-{job.name}-{key[:8]}-{run}")
+        f = client.submit(task_preview, src, dict(meta(job, key), own_dress=pair in own_dress), pure=False,
+                          key=f"preview-{job.name}-{key[:8]}-{run}")
         futures[f] = job
 
     for job in jobs:  # known before running: cache hits and missing inputs
@@ -413,6 +468,7 @@ def run_batch(jobset: JobSet, outdir, client, resume: bool = False, previews: bo
             on_done(rec)
         fut.release()
     for rec in records.values():
-        for k in ("cache_root", "suffix", "size", "measure_every"):
+        for k in ("cache_root", "suffix", "size", "measure_every", "own_dress"):
             rec.pop(k, None)
+    counts["owners"] = {str(r): w for r, w in owners.items()}
     return BatchResult([records[j] for j in jobs], time.perf_counter() - t_start, counts)

@@ -36,6 +36,7 @@ def _client(args):
     """A Dask client: on ``--scheduler``, or on a new local cluster of processes."""
     import logging
 
+    import dask
     from distributed import Client, LocalCluster
     if args.scheduler:
         try:
@@ -45,8 +46,11 @@ def _client(args):
     n = args.workers or os.cpu_count() or 1
     # Dask's dashboard needs bokeh: started (on a free port) only when it is installed
     dashboard = ":0" if importlib.util.find_spec("bokeh") is not None else None
-    cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=dashboard,
-                           silence_logs=logging.ERROR)
+    # no work stealing: each reference's tasks stay on the worker that holds its plan
+    # (batch.graph.assign_owners); an idle worker would otherwise build the plan again
+    with dask.config.set({"distributed.scheduler.work-stealing": False}):
+        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=dashboard,
+                               silence_logs=logging.ERROR)
     return Client(cluster), cluster
 
 
@@ -96,7 +100,7 @@ def run(args) -> int:
             bar.close()
         summ = write_report(result.records, out, result.seconds, jobset.source,
                             {"scheduler": client.scheduler.address, "workers": n_workers,
-                             "dashboard": dashboard, "local": cluster is not None})
+                             "dashboard": dashboard, "local": cluster is not None}, result.intermediates)
     finally:
         client.close()
         if cluster is not None:
@@ -104,6 +108,7 @@ def run(args) -> int:
     for rec in failures:
         print(f"wearfit batch: {rec['id']} failed: {rec['error']}", file=sys.stderr)
     info(f"batch: {summ['ok']} of {summ['jobs']} jobs ok, {summ['failed']} failed; cache hits "
-         f"{summ['cache_hits']}, computed {summ['computed']} in {summ['wall_seconds']:.1f} s "
+         f"{summ['cache_hits']}, computed {summ['computed']} ({summ['plans_built']} dressing plans built) in "
+         f"{summ['wall_seconds']:.1f} s "
          f"({summ['jobs_per_minute']} jobs/min); report {out / 'report.md'}")
     return 1 if summ["failed"] else 0
