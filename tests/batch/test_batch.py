@@ -216,6 +216,8 @@ def test_local_cluster_run(local_run):
     assert len({j["worker_pid"] for j in planned}) == 1
     assert jobs["dress/ref_female__body_female_thin"]["figures"]["new_penetration_pct"] >= 0
     assert "| peak MiB |" in (out / "report.md").read_text()
+    shot_figures = jobs["animate/ref_female__body_female_thin__cmu_07_01_walk_1-41"]["figures"]
+    assert shot_figures["motion_worst"] and "stretch p99" in (out / "report.md").read_text()
 
 
 @pytest.mark.slow

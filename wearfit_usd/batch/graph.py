@@ -220,6 +220,7 @@ def task_animate(reference, target, plan_key: str, meta: dict) -> dict:
                    "worst_frame_new_penetration_pct": 100 * rep.worst_frame_penetration,
                    "mean_new_penetration_pct": (100 * sum(rep.per_frame_penetration) / len(rep.per_frame_penetration)
                                                 if rep.per_frame_penetration else None),
+                   "motion_worst": rep.motion_worst, "cloth_vertices": rep.cloth_vertices,
                    "timings_s": {k: v for k, v in rep.timings.items() if not isinstance(v, dict)}}
     return _record(meta, t, obj, figures, plan_built=built)
 

@@ -40,6 +40,14 @@ def _fmt(v, nd=2):
     return str(v)
 
 
+def _worst(figures: dict, measure: str) -> float | None:
+    """The largest worst-frame value of a motion measure over a shot's items
+    (:func:`~wearfit_usd.animate.measures.worst_frames`), None if none applies."""
+    vals = [m[measure]["value"] for m in (figures.get("motion_worst") or {}).values()
+            if m.get(measure, {}).get("value") is not None]
+    return max(vals) if vals else None
+
+
 def _main_figures(rec: dict) -> str:
     f = rec.get("figures") or {}
     p = rec["product"]
@@ -51,7 +59,9 @@ def _main_figures(rec: dict) -> str:
                 f"{_fmt(f.get('clearance_change_p95_mm'))} mm")
     if p == "animate":
         return (f"{f.get('frames')} frames; new penetration worst frame "
-                f"{_fmt(f.get('worst_frame_new_penetration_pct'))} %, mean {_fmt(f.get('mean_new_penetration_pct'))} %")
+                f"{_fmt(f.get('worst_frame_new_penetration_pct'))} %, mean {_fmt(f.get('mean_new_penetration_pct'))} %"
+                f"; worst item: stretch p99 {_fmt(_worst(f, 'stretch_p99'))}x, coverage loss "
+                f"{_fmt(_worst(f, 'coverage_loss_pct'))} %, separation p95 {_fmt(_worst(f, 'separation_p95_mm'))} mm")
     return ""
 
 
