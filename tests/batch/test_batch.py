@@ -14,6 +14,7 @@ import pytest
 
 from tests.conftest import BVH_DIR, REPO, USD_DIR
 from wearfit_usd.batch.cache import Cache, file_digest, result_key
+from wearfit_usd.batch.graph import assign_owners
 from wearfit_usd.batch.jobs import Clip, Job, load_jobs
 from wearfit_usd.errors import InputError
 
@@ -132,6 +133,39 @@ def test_cache_lookup_needs_record_and_object(tmp_path):
     assert c.lookup(key) is None  # a record without its object is no result
     obj.write_bytes(b"x")
     assert c.lookup(key)["object"] == str(obj)
+
+
+# ---------------------------------------------------------------- plan owners
+
+
+def _jobs(ref: str, n_dress: int, n_fit: int = 0) -> list[Job]:
+    r = Path(ref)
+    return ([Job("dress", r, Path(f"t{i}.usdc")) for i in range(n_dress)]
+            + [Job("fit", r, Path(f"t{i}.usdc")) for i in range(n_fit)])
+
+
+def test_each_reference_gets_the_least_loaded_worker():
+    jobs = _jobs("a.usda", 6, n_fit=9) + _jobs("b.usda", 4) + _jobs("c.usda", 3)
+    owners = assign_owners(jobs, ["w1", "w2"])
+    # heaviest first (fit jobs need no plan): a (6) -> w1, b (4) -> w2, c (3) -> w2 (4 < 6)
+    assert owners == {Path("a.usda"): ["w1"], Path("b.usda"): ["w2"], Path("c.usda"): ["w2"]}
+    two = assign_owners(_jobs("a.usda", 2) + _jobs("b.usda", 2), ["w1", "w2"])
+    assert two == {Path("a.usda"): ["w1"], Path("b.usda"): ["w2"]}
+    assert assign_owners(jobs, []) == {}
+
+
+def test_plan_workers_spread_a_reference():
+    jobs = _jobs("a.usda", 4) + _jobs("b.usda", 2)
+    assert assign_owners(jobs, ["w1", "w2", "w3"], per_reference=2) == \
+        {Path("a.usda"): ["w1", "w2"], Path("b.usda"): ["w3", "w1"]}
+    assert assign_owners(jobs, ["w1"], per_reference=4) == {Path("a.usda"): ["w1"], Path("b.usda"): ["w1"]}
+
+
+def test_plan_workers_must_be_positive(tmp_path, capsys):
+    from wearfit_usd.cli import main
+    job = _write(tmp_path, "jobs.json", '{"references": ["a.usda"], "targets": ["b.usdc"]}')
+    assert main(["batch", str(job), "-o", str(tmp_path / "out"), "--plan-workers", "0"]) != 0
+    assert "--plan-workers must be >= 1" in capsys.readouterr().err
 
 
 # ---------------------------------------------------------------- real runs
@@ -327,7 +361,8 @@ def test_plan_built_once_and_outputs_equal_the_single_commands(tmp_path):
     assert rep["summary"]["plans_built_by_reference"] == {"ref_female.usda": 1}
     assert sum(bool(j["plan_built"]) for j in rep["jobs"]) == 1
     assert len({j["worker_pid"] for j in rep["jobs"]}) == 1
-    assert rep["intermediates"]["owners"] == {str(ref): next(iter(rep["intermediates"]["owners"].values()))}
+    owners = rep["intermediates"]["owners"]
+    assert list(owners) == [str(ref)] and len(owners[str(ref)]) == 1
     assert "dressing plans built 1 (ref_female.usda: 1)" in (out / "report.md").read_text()
     jobs = {j["id"]: j for j in rep["jobs"]}
     single = tmp_path / "single"

@@ -271,12 +271,13 @@ MEASURE_EVERY = 5  # exact penetration figures of a shot every N frames (does no
 PLANNED = ("dress", "animate", "preview")  # products whose tasks need the reference's plan (preview: its dressing)
 
 
-def assign_owners(jobs: list[Job], workers: list[str]) -> dict[Path, str]:
-    """The worker that builds and uses each reference's dressing plan.
+def assign_owners(jobs: list[Job], workers: list[str], per_reference: int = 1) -> dict[Path, list[str]]:
+    """The workers that build and use each reference's dressing plan.
 
-    References are dealt out heaviest first to the least loaded worker, the
+    References are dealt out heaviest first to the least loaded workers, the
     load being the number of jobs that need the plan (``dress``, ``animate``
-    and the dressing behind a ``preview``); ties go to the worker listed first.
+    and the dressing behind a ``preview``), shared evenly by a reference's
+    workers; ties go to the worker listed first.
 
     Parameters
     ----------
@@ -284,28 +285,33 @@ def assign_owners(jobs: list[Job], workers: list[str]) -> dict[Path, str]:
         The jobs to run.
     workers : list of str
         Worker addresses (sorted by the caller for a reproducible deal).
+    per_reference : int
+        Workers per reference (each builds the plan once): 1 builds every
+        plan once; more spread a reference's shots over more workers.
 
     Returns
     -------
     dict
-        ``{reference path: worker address}``; empty without workers.
+        ``{reference path: [worker address, ...]}``; empty without workers.
     """
     if not workers:
         return {}
+    n = max(1, min(per_reference, len(workers)))
     load: dict[Path, int] = {}
     for j in jobs:
         load[j.reference] = load.get(j.reference, 0) + (j.product in PLANNED)
-    busy = dict.fromkeys(workers, 0)
+    busy = dict.fromkeys(workers, 0.0)
     owners = {}
     for ref in sorted(load, key=lambda r: -load[r]):  # stable: file order among equals
-        w = min(workers, key=lambda a: busy[a])
-        owners[ref] = w
-        busy[w] += load[ref]
+        group = sorted(workers, key=lambda a: busy[a])[:n]  # stable: listed order among equals
+        owners[ref] = group
+        for w in group:
+            busy[w] += load[ref] / n
     return owners
 
 
 def run_batch(jobset: JobSet, outdir, client, resume: bool = False, previews: bool = True,
-              on_done=None) -> BatchResult:
+              on_done=None, plan_workers: int = 1) -> BatchResult:
     """Run every job of ``jobset`` on the Dask ``client``; place the products under ``outdir``.
 
     Parameters
@@ -322,6 +328,8 @@ def run_batch(jobset: JobSet, outdir, client, resume: bool = False, previews: bo
         Run the ``preview`` jobs (else they are left out of the batch).
     on_done : callable, optional
         Called with each finished job's record (progress).
+    plan_workers : int
+        Workers per reference for its dressings and shots (:func:`assign_owners`).
 
     Returns
     -------
@@ -395,13 +403,13 @@ def run_batch(jobset: JobSet, outdir, client, resume: bool = False, previews: bo
     plan_keys = {r: result_key("plan", [digests[r]], {"k": opts["k"]}) for r in digests}
     # each reference's planned tasks on one worker (loose: elsewhere if it is lost), submitted
     # reference by reference so a worker owning several finishes one plan's tasks first
-    owners = assign_owners([j for j, _ in todo], sorted(client.scheduler_info().get("workers", {})))
+    owners = assign_owners([j for j, _ in todo], sorted(client.scheduler_info().get("workers", {})), plan_workers)
     order = {r: i for i, r in enumerate(dict.fromkeys(j.reference for j in jobs))}
     todo.sort(key=lambda jk: order[jk[0].reference])
 
     def pinned(job: Job) -> dict:
-        w = owners.get(job.reference)
-        return {"workers": [w], "allow_other_workers": True} if w else {}
+        group = owners.get(job.reference)
+        return {"workers": group, "allow_other_workers": True} if group else {}
 
     futures, own_dress = {}, set()
     for job, key in todo:

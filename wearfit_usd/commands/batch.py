@@ -28,6 +28,9 @@ def register(sub, common):
     p.add_argument("--resume", action="store_true",
                    help="reuse the complete results already in OUTDIR whose inputs, options and code match")
     p.add_argument("--no-previews", action="store_true", help="skip the preview jobs and contact sheets")
+    p.add_argument("--plan-workers", type=int, default=1, metavar="N",
+                   help="workers that dress and animate each reference, each building its dressing plan once "
+                        "(default 1: every plan built once; more spread few references over many workers)")
     p.set_defaults(func=run)
     return p
 
@@ -73,6 +76,8 @@ def run(args) -> int:
     jobset = load_jobs(args.jobs)
     if args.workers is not None and args.workers < 1:
         raise InputError(None, f"--workers must be >= 1 (got {args.workers})")
+    if args.plan_workers < 1:
+        raise InputError(None, f"--plan-workers must be >= 1 (got {args.plan_workers})")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     client, cluster = _client(args)
@@ -95,7 +100,7 @@ def run(args) -> int:
                 failures.append(rec)
 
         result = run_batch(jobset, out, client, resume=args.resume, previews=not args.no_previews,
-                           on_done=on_done)
+                           on_done=on_done, plan_workers=args.plan_workers)
         if bar is not None and hasattr(bar, "close"):
             bar.close()
         summ = write_report(result.records, out, result.seconds, jobset.source,
