@@ -28,6 +28,7 @@ the problem); Dask reschedules the tasks of a lost worker by itself
 """
 from __future__ import annotations
 
+import functools
 import os
 import pickle
 import resource
@@ -58,6 +59,22 @@ FIT_OPTIONS = {"pose_align": True, "same_topology_shortcut": True}
 
 class JobError(RuntimeError):
     """A job's failure as one line (picklable, unlike errors with extra fields)."""
+
+
+def _fails_cleanly(task):
+    """A task whose :class:`JobError` carries no chained exception: Dask
+    pickles an error with its ``__context__``, and the project's errors with
+    extra fields cannot be unpickled, which would turn the message into a
+    ``JobError("...")`` repr."""
+    @functools.wraps(task)
+    def run(*args, **kwargs):
+        try:
+            return task(*args, **kwargs)
+        except JobError as exc:
+            error = JobError(str(exc))
+        raise error  # outside the handler: no context
+
+    return run
 
 
 # ----------------------------------------------------------------------------
@@ -125,6 +142,7 @@ class _Task:
                 "warnings": self.warnings, "worker_pid": os.getpid()}
 
 
+@_fails_cleanly
 def task_read(path: str, role: str):
     """Read one USD stage (a reference with its skeleton, a target with or without)."""
     with _Task(f"reading {role} {path}"):
@@ -133,6 +151,7 @@ def task_read(path: str, role: str):
         return read_character(path, require_skeleton=(role == "reference"))
 
 
+@_fails_cleanly
 def task_fit(reference, target, cache_root: str, key: str, resume: bool):
     """The reference body fitted onto the target (a :class:`FitResult`),
     loaded from the cache when ``resume`` and stored there."""
@@ -169,6 +188,7 @@ def _record(meta: dict, task: _Task, obj: Path, figures: dict, **extra) -> dict:
     return rec
 
 
+@_fails_cleanly
 def task_fit_product(reference, target, fit, meta: dict) -> dict:
     """Write the fitted body (as ``wearfit fit``)."""
     obj = Cache(meta["cache_root"]).object_path(meta["key"], meta["suffix"])
@@ -184,6 +204,7 @@ def task_fit_product(reference, target, fit, meta: dict) -> dict:
     return _record(meta, t, obj, figures)
 
 
+@_fails_cleanly
 def task_dress(reference, target, fit, plan_key: str, meta: dict) -> dict:
     """Dress the target with the reference's items (as ``wearfit dress``),
     on the shared fit and this worker's plan of the reference."""
@@ -203,6 +224,7 @@ def task_dress(reference, target, fit, plan_key: str, meta: dict) -> dict:
     return _record(meta, t, obj, figures, plan_built=built)
 
 
+@_fails_cleanly
 def task_animate(reference, target, plan_key: str, meta: dict) -> dict:
     """One shot (as ``wearfit animate``), streamed to the cache, on this
     worker's plan of the reference."""
@@ -225,6 +247,7 @@ def task_animate(reference, target, plan_key: str, meta: dict) -> dict:
     return _record(meta, t, obj, figures, plan_built=built)
 
 
+@_fails_cleanly
 def task_preview(dressed, meta: dict) -> dict:
     """A front view of the dressed target (a PNG)."""
     from ..render.preview import render_frames  # pyrender/OpenGL: loaded by preview tasks only
