@@ -109,22 +109,34 @@ def with_cluster(work: Path, fn):
         logs.close()
 
 
-def sequential(inp: Path, out: Path, end: int) -> float:
-    """The same work as `wearfit` commands one after another."""
+def pairs_mixed() -> list[tuple[str, str]]:
+    """Every (reference, target) pair, alternating references and mixing
+    same-sex, cross-sex and remeshed targets (a prefix is a fair sample)."""
+    order = ["female_thin", "male_heavy", "female_heavy_remeshed", "female_short", "male_tall",
+             "male_muscular_posed", "female_uncommon_yup", "male_cmu_rig", "male_muscular_heavy", "female_heavy"]
+    return [(REFERENCES[(i + k) % 2], t) for k in range(2) for i, t in enumerate(order)]
+
+
+def sequential(inp: Path, out: Path, end: int, cap: float | None = None) -> tuple[float, int]:
+    """The same work as `wearfit` commands one after another, whole pairs at
+    a time (:func:`pairs_mixed`), stopping after ``cap`` seconds when given.
+    Returns (seconds, commands run)."""
     out.mkdir(parents=True, exist_ok=True)
-    t = 0.0
-    for ref in REFERENCES:
-        for tgt in TARGETS:
-            r, b = str(inp / ref), str(inp / f"body_{tgt}.usdc")
-            name = f"{Path(ref).stem}__{tgt}"
-            t += wearfit("fit", "-q", r, b, "-o", str(out / f"fit_{name}.usd"))
-            t += wearfit("dress", "-q", r, b, "-o", str(out / f"dress_{name}.usd"))
-            for clip in CLIPS:
-                t += wearfit("animate", "-q", r, b, str(inp / clip), "--start", "1", "--end", str(end),
-                             "-o", str(out / f"anim_{name}_{Path(clip).stem}.usd"))
-            t += wearfit("render", "-q", str(out / f"dress_{name}.usd"), "-o", str(out / f"png_{name}"),
-                         "--camera", "front", "--size", "320x400")
-    return t
+    t, n = 0.0, 0
+    for ref, tgt in pairs_mixed():
+        if cap is not None and t > cap:
+            break
+        r, b = str(inp / ref), str(inp / f"body_{tgt}.usdc")
+        name = f"{Path(ref).stem}__{tgt}"
+        t += wearfit("fit", "-q", r, b, "-o", str(out / f"fit_{name}.usd"))
+        t += wearfit("dress", "-q", r, b, "-o", str(out / f"dress_{name}.usd"))
+        for clip in CLIPS:
+            t += wearfit("animate", "-q", r, b, str(inp / clip), "--start", "1", "--end", str(end),
+                         "-o", str(out / f"anim_{name}_{Path(clip).stem}.usd"))
+        t += wearfit("render", "-q", str(out / f"dress_{name}.usd"), "-o", str(out / f"png_{name}"),
+                     "--camera", "front", "--size", "320x400")
+        n += 6
+    return t, n
 
 
 def usd_points(path) -> dict:
@@ -168,21 +180,21 @@ def change_bytes(path: Path) -> None:
     layer.Save()
 
 
-def main(work: Path, end: int = 61, skip_sequential: bool = False) -> dict:
+def main(work: Path, end: int = 61, skip_sequential: bool = False, sequential_cap: float | None = None) -> dict:
     job = dev_job_file(work, end)
     res = {"jobs_file": str(job), "clip_range": [1, end], "cores": os.cpu_count()}
     res["local_2_workers"] = batch(job, work / "out2", "--workers", "2")
     res["local_1_worker"] = batch(job, work / "out1", "--workers", "1")
     res["scheduler_2_workers"] = with_cluster(work, lambda a: batch(job, work / "outS", "--scheduler", a))
-    n = res["local_2_workers"]["computed"]
     if not skip_sequential:
         l0 = load()
-        seq = sequential(job.parent, work / "seq", end)
-        res["sequential_commands"] = {"commands": n, "seconds": round(seq, 2),
-                                      "jobs_per_minute": round(60 * n / seq, 2), "load_before": l0,
+        seq, m = sequential(job.parent, work / "seq", end, sequential_cap)
+        res["sequential_commands"] = {"commands": m, "seconds": round(seq, 2),
+                                      "jobs_per_minute": round(60 * m / seq, 2), "load_before": l0,
                                       "load_after": load()}
         for k in ("local_1_worker", "local_2_workers", "scheduler_2_workers"):
-            res[k]["speedup_over_sequential"] = round(seq / res[k]["command_seconds"], 2)
+            res[k]["speedup_over_sequential"] = round(res[k]["jobs_per_minute"] / res["sequential_commands"]
+                                                      ["jobs_per_minute"], 2)
     res["local_2_vs_scheduler"] = compare(work / "out2", work / "outS")
     res["local_2_vs_local_1"] = compare(work / "out2", work / "out1")
     rep = json.loads((work / "out2" / "report.json").read_text())
@@ -224,9 +236,11 @@ if __name__ == "__main__":
     ap.add_argument("work", nargs="?", default="/tmp/bench_batch")
     ap.add_argument("--end", type=int, default=61, help="last clip frame (exclusive; 120 fps clips, 30 fps out)")
     ap.add_argument("--skip-sequential", action="store_true")
+    ap.add_argument("--sequential-cap", type=float, default=None, metavar="SECONDS",
+                    help="stop the one-after-another commands after this long (whole pairs; jobs/min compares)")
     a = ap.parse_args()
     work = Path(a.work)
     work.mkdir(parents=True, exist_ok=True)
-    out = main(work, a.end, a.skip_sequential)
+    out = main(work, a.end, a.skip_sequential, a.sequential_cap)
     (work / "bench_batch.json").write_text(json.dumps(out, indent=1))
     print(json.dumps(out, indent=1))
