@@ -2,6 +2,7 @@
 and on a scheduler with workers started as separate processes."""
 from __future__ import annotations
 
+import importlib.util
 import json
 import os
 import socket
@@ -244,6 +245,8 @@ def test_local_cluster_run(local_run):
     assert jobs["dress/ref_female__body_female_thin"]["figures"]["items"]
     assert (out / "contact_body_female_thin.png").is_file() and (out / "report.md").is_file()
     assert rep["summary"]["ok"] == 6 and rep["summary"]["failed"] == 2
+    if importlib.util.find_spec("bokeh") is None:  # no dashboard without bokeh: no dead link either
+        assert rep["cluster"]["dashboard"] is None
     # one reference: its plan built once, by the worker that ran all its dressings and shots
     assert rep["summary"]["plans_built"] == 1
     planned = [jobs[i] for i in ok if jobs[i]["product"] in ("dress", "animate")]

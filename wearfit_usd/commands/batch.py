@@ -4,6 +4,7 @@ from __future__ import annotations
 import importlib.util
 import os
 import sys
+import urllib.request
 from pathlib import Path
 
 from ..errors import InputError
@@ -58,12 +59,15 @@ def _client(args):
 
 
 def _dashboard(client) -> str | None:
-    """The dashboard's address when the scheduler serves one."""
+    """The dashboard's address when the scheduler serves one (its HTTP
+    service answers 404 there when bokeh is missing: then None)."""
     try:
         if "dashboard" not in client.scheduler_info().get("services", {}):
             return None
-        return client.dashboard_link
-    except (AttributeError, KeyError, OSError):
+        link = client.dashboard_link
+        with urllib.request.urlopen(link, timeout=3) as page:
+            return link if page.status == 200 else None
+    except (AttributeError, KeyError, OSError, ValueError):
         return None
 
 
