@@ -114,13 +114,15 @@ def pairs_mixed() -> list[tuple[str, str]]:
     same-sex, cross-sex and remeshed targets (a prefix is a fair sample)."""
     order = ["female_thin", "male_heavy", "female_heavy_remeshed", "female_short", "male_tall",
              "male_muscular_posed", "female_uncommon_yup", "male_cmu_rig", "male_muscular_heavy", "female_heavy"]
+    order = [t for t in order if t in TARGETS]
     return [(REFERENCES[(i + k) % 2], t) for k in range(2) for i, t in enumerate(order)]
 
 
 def sequential(inp: Path, out: Path, end: int, cap: float | None = None) -> tuple[float, int]:
     """The same work as `wearfit` commands one after another, whole pairs at
-    a time (:func:`pairs_mixed`), stopping after ``cap`` seconds when given.
-    Returns (seconds, commands run)."""
+    a time (:func:`pairs_mixed`), stopping after ``cap`` seconds when given;
+    with the figures the batch records (dress and shot ``--report``, the shot
+    measured every 5th frame as the batch does). Returns (seconds, commands run)."""
     out.mkdir(parents=True, exist_ok=True)
     t, n = 0.0, 0
     for ref, tgt in pairs_mixed():
@@ -129,10 +131,12 @@ def sequential(inp: Path, out: Path, end: int, cap: float | None = None) -> tupl
         r, b = str(inp / ref), str(inp / f"body_{tgt}.usdc")
         name = f"{Path(ref).stem}__{tgt}"
         t += wearfit("fit", "-q", r, b, "-o", str(out / f"fit_{name}.usd"))
-        t += wearfit("dress", "-q", r, b, "-o", str(out / f"dress_{name}.usd"))
+        t += wearfit("dress", "-q", r, b, "-o", str(out / f"dress_{name}.usd"),
+                     "--report", str(out / f"dress_{name}.json"))
         for clip in CLIPS:
+            shot = f"anim_{name}_{Path(clip).stem}"
             t += wearfit("animate", "-q", r, b, str(inp / clip), "--start", "1", "--end", str(end),
-                         "-o", str(out / f"anim_{name}_{Path(clip).stem}.usd"))
+                         "-o", str(out / f"{shot}.usd"), "--report", str(out / f"{shot}.json"), "--measure-every", "5")
         t += wearfit("render", "-q", str(out / f"dress_{name}.usd"), "-o", str(out / f"png_{name}"),
                      "--camera", "front", "--size", "320x400")
         n += 6
