@@ -424,7 +424,7 @@ def run_batch(jobset: JobSet, outdir, client, resume: bool = False, previews: bo
                     fps=opts["fps"], size=opts["preview_size"], measure_every=MEASURE_EVERY)
 
     plan_keys = {r: result_key("plan", [digests[r]], {"k": opts["k"]}) for r in digests}
-    # each reference's planned tasks on one worker (loose: elsewhere if it is lost), submitted
+    # each reference's planned tasks on its worker(s) (loose: elsewhere if lost), submitted
     # reference by reference so a worker owning several finishes one plan's tasks first
     owners = assign_owners([j for j, _ in todo], sorted(client.scheduler_info().get("workers", {})), plan_workers)
     order = {r: i for i, r in enumerate(dict.fromkeys(j.reference for j in jobs))}
