@@ -2,6 +2,7 @@
 and on a scheduler with workers started as separate processes."""
 from __future__ import annotations
 
+import importlib.util
 import json
 import os
 import socket
@@ -14,6 +15,7 @@ import pytest
 
 from tests.conftest import BVH_DIR, REPO, USD_DIR
 from wearfit_usd.batch.cache import Cache, file_digest, result_key
+from wearfit_usd.batch.graph import assign_owners
 from wearfit_usd.batch.jobs import Clip, Job, load_jobs
 from wearfit_usd.errors import InputError
 
@@ -134,6 +136,39 @@ def test_cache_lookup_needs_record_and_object(tmp_path):
     assert c.lookup(key)["object"] == str(obj)
 
 
+# ---------------------------------------------------------------- plan owners
+
+
+def _jobs(ref: str, n_dress: int, n_fit: int = 0) -> list[Job]:
+    r = Path(ref)
+    return ([Job("dress", r, Path(f"t{i}.usdc")) for i in range(n_dress)]
+            + [Job("fit", r, Path(f"t{i}.usdc")) for i in range(n_fit)])
+
+
+def test_each_reference_gets_the_least_loaded_worker():
+    jobs = _jobs("a.usda", 6, n_fit=9) + _jobs("b.usda", 4) + _jobs("c.usda", 3)
+    owners = assign_owners(jobs, ["w1", "w2"])
+    # heaviest first (fit jobs need no plan): a (6) -> w1, b (4) -> w2, c (3) -> w2 (4 < 6)
+    assert owners == {Path("a.usda"): ["w1"], Path("b.usda"): ["w2"], Path("c.usda"): ["w2"]}
+    two = assign_owners(_jobs("a.usda", 2) + _jobs("b.usda", 2), ["w1", "w2"])
+    assert two == {Path("a.usda"): ["w1"], Path("b.usda"): ["w2"]}
+    assert assign_owners(jobs, []) == {}
+
+
+def test_plan_workers_spread_a_reference():
+    jobs = _jobs("a.usda", 4) + _jobs("b.usda", 2)
+    assert assign_owners(jobs, ["w1", "w2", "w3"], per_reference=2) == \
+        {Path("a.usda"): ["w1", "w2"], Path("b.usda"): ["w3", "w1"]}
+    assert assign_owners(jobs, ["w1"], per_reference=4) == {Path("a.usda"): ["w1"], Path("b.usda"): ["w1"]}
+
+
+def test_plan_workers_must_be_positive(tmp_path, capsys):
+    from wearfit_usd.cli import main
+    job = _write(tmp_path, "jobs.json", '{"references": ["a.usda"], "targets": ["b.usdc"]}')
+    assert main(["batch", str(job), "-o", str(tmp_path / "out"), "--plan-workers", "0"]) != 0
+    assert "--plan-workers must be >= 1" in capsys.readouterr().err
+
+
 # ---------------------------------------------------------------- real runs
 
 
@@ -173,10 +208,13 @@ def _job_file(folder: Path) -> Path:
     return path
 
 
-def _wearfit(*args, timeout=600):
-    env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+def _env(**extra) -> dict:
+    return dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""), **extra)
+
+
+def _wearfit(*args, timeout=600, **env):
     return subprocess.run([sys.executable, "-m", "wearfit_usd", *args], capture_output=True, text=True,
-                          env=env, timeout=timeout)
+                          env=_env(**env), timeout=timeout)
 
 
 @pytest.fixture(scope="module")
@@ -207,6 +245,16 @@ def test_local_cluster_run(local_run):
     assert jobs["dress/ref_female__body_female_thin"]["figures"]["items"]
     assert (out / "contact_body_female_thin.png").is_file() and (out / "report.md").is_file()
     assert rep["summary"]["ok"] == 6 and rep["summary"]["failed"] == 2
+    if importlib.util.find_spec("bokeh") is None:  # no dashboard without bokeh: no dead link either
+        assert rep["cluster"]["dashboard"] is None
+    # one reference: its plan built once, by the worker that ran all its dressings and shots
+    assert rep["summary"]["plans_built"] == 1
+    planned = [jobs[i] for i in ok if jobs[i]["product"] in ("dress", "animate")]
+    assert len({j["worker_pid"] for j in planned}) == 1
+    assert jobs["dress/ref_female__body_female_thin"]["figures"]["new_penetration_pct"] >= 0
+    assert "| peak MiB |" in (out / "report.md").read_text()
+    shot_figures = jobs["animate/ref_female__body_female_thin__cmu_07_01_walk_1-41"]["figures"]
+    assert shot_figures["motion_worst"] and "stretch p99" in (out / "report.md").read_text()
 
 
 @pytest.mark.slow
@@ -216,6 +264,7 @@ def test_failures_are_isolated_with_their_message(local_run):
     jobs = {j["id"]: j for j in rep["jobs"]}
     broken = jobs["dress/ref_female__broken_body"]
     assert broken["status"] == "failed" and "broken_body.usdc" in broken["error"]
+    assert broken["error"].startswith("reading target ") and "cannot open as USD" in broken["error"]
     missing = jobs["animate/ref_female__body_female_thin__missing_clip_1-41"]
     assert missing["status"] == "failed" and "missing_clip.bvh: file not found" in missing["error"]
     assert "broken_body" in r.stderr and "missing_clip.bvh" in r.stderr
@@ -259,19 +308,10 @@ def test_separate_scheduler_and_workers_same_outputs(local_run, tmp_path):
     points as on the local cluster."""
     from distributed import Client
     job, local_out, _ = local_run
-    port = _free_port()
-    address = f"tcp://127.0.0.1:{port}"
-    env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    logs = open(tmp_path / "dask.log", "w")
-    procs = [subprocess.Popen([sys.executable, "-m", "dask", "scheduler", "--host", "127.0.0.1",
-                               "--port", str(port), "--no-dashboard"], env=env, stdout=logs, stderr=logs)]
+    address, procs, logs = _start_cluster(tmp_path, _env())
     try:
-        for _ in range(2):
-            procs.append(subprocess.Popen([sys.executable, "-m", "dask", "worker", address,
-                                           "--nthreads", "1", "--nworkers", "1", "--no-dashboard"],
-                                          env=env, cwd=tmp_path, stdout=logs, stderr=logs))
         with Client(address, timeout="60s") as c:
-            c.wait_for_workers(2, timeout=120)
+            worker_pids = set(c.run(os.getpid).values())
         r = _wearfit("batch", "-q", str(job), "-o", str(tmp_path / "out"), "--scheduler", address)
         assert r.returncode == 1, r.stderr
     finally:
@@ -279,7 +319,8 @@ def test_separate_scheduler_and_workers_same_outputs(local_run, tmp_path):
         logs.close()
     rep = json.loads((tmp_path / "out" / "report.json").read_text())
     assert rep["cluster"]["workers"] == 2 and rep["cluster"]["local"] is False
-    assert len({j["worker_pid"] for j in rep["jobs"] if j["status"] == "ok"}) == 2
+    assert len(worker_pids) == 2 and {j["worker_pid"] for j in rep["jobs"] if j["status"] == "ok"} <= worker_pids
+    assert 1 <= rep["summary"]["plans_built"] <= 2  # 2: a plan's tasks stolen by the idle worker
     local = {j["id"]: j for j in json.loads((local_out / "report.json").read_text())["jobs"]}
     compared = 0
     for j in rep["jobs"]:
@@ -291,3 +332,138 @@ def test_separate_scheduler_and_workers_same_outputs(local_run, tmp_path):
             assert a.keys() == b.keys() and a == b, j["id"]
             compared += 1
     assert compared == 5
+
+
+@pytest.mark.slow
+def test_plan_built_once_and_outputs_equal_the_single_commands(tmp_path):
+    """2 workers x 1 reference x 2 targets x 1 clip, dress and animate: the
+    reference's plan is built once (every planned task on its worker), and the
+    outputs equal `wearfit dress` / `wearfit animate` bitwise (run with one
+    BLAS thread, as Dask's workers are)."""
+    ref = USD_DIR / "ref_female.usda"
+    targets = [USD_DIR / "body_female_thin.usdc", USD_DIR / "body_female_short.usdc"]
+    walk = BVH_DIR / "cmu_07_01_walk.bvh"
+    job = tmp_path / "jobs.json"
+    job.write_text(json.dumps({"references": [str(ref)], "targets": [str(t) for t in targets],
+                               "clips": [{"path": str(walk), "start": 1, "end": 41}],
+                               "products": ["dress", "animate"]}))
+    out = tmp_path / "out"
+    r = _wearfit("batch", "-q", str(job), "-o", str(out), "--workers", "2")
+    assert r.returncode == 0, r.stderr
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["cluster"]["workers"] == 2 and rep["summary"]["ok"] == 4
+    assert rep["summary"]["plans_built"] == 1
+    assert rep["summary"]["plans_built_by_reference"] == {"ref_female.usda": 1}
+    assert sum(bool(j["plan_built"]) for j in rep["jobs"]) == 1
+    assert len({j["worker_pid"] for j in rep["jobs"]}) == 1
+    owners = rep["intermediates"]["owners"]
+    assert list(owners) == [str(ref)] and len(owners[str(ref)]) == 1
+    assert "dressing plans built 1 (ref_female.usda: 1)" in (out / "report.md").read_text()
+    jobs = {j["id"]: j for j in rep["jobs"]}
+    single = tmp_path / "single"
+    single.mkdir()
+    for t in targets:
+        name = f"ref_female__{t.stem}"
+        d = _wearfit("dress", "-q", str(ref), str(t), "-o", str(single / f"{name}.usd"), OMP_NUM_THREADS="1")
+        assert d.returncode == 0, d.stderr
+        assert usd_points(single / f"{name}.usd") == usd_points(jobs[f"dress/{name}"]["output"]), name
+    t = targets[1]
+    name = f"ref_female__{t.stem}"
+    a = _wearfit("animate", "-q", str(ref), str(t), str(walk), "--start", "1", "--end", "41",
+                 "-o", str(single / f"{name}_walk.usd"), OMP_NUM_THREADS="1")
+    assert a.returncode == 0, a.stderr
+    shot = usd_points(single / f"{name}_walk.usd")
+    assert len({k[2] for k in shot}) >= 10
+    assert shot == usd_points(jobs[f"animate/{name}__cmu_07_01_walk_1-41"]["output"])
+
+
+def _start_cluster(tmp_path, env, nanny=True):
+    """`dask scheduler` and two `dask worker` processes on a free loopback
+    port; returns (address, [scheduler, worker, worker] Popen, log file)."""
+    from distributed import Client
+    port = _free_port()
+    address = f"tcp://127.0.0.1:{port}"
+    logs = open(tmp_path / "dask.log", "w")
+    procs = [subprocess.Popen([sys.executable, "-m", "dask", "scheduler", "--host", "127.0.0.1",
+                               "--port", str(port), "--no-dashboard"], env=env, stdout=logs, stderr=logs)]
+    try:
+        for _ in range(2):
+            procs.append(subprocess.Popen([sys.executable, "-m", "dask", "worker", address, "--nthreads", "1",
+                                           "--nworkers", "1", "--no-dashboard",
+                                           "--nanny" if nanny else "--no-nanny"],
+                                          env=env, cwd=tmp_path, stdout=logs, stderr=logs))
+        with Client(address, timeout="60s") as c:
+            c.wait_for_workers(2, timeout=120)
+    except BaseException:
+        _stop(procs[1:] + procs[:1])
+        logs.close()
+        raise
+    return address, procs, logs
+
+
+@pytest.mark.slow
+def test_killed_worker_loses_no_job(local_run, tmp_path):
+    """A real scheduler and two workers (no nanny, so a killed worker stays
+    dead); the worker running a shot is killed (SIGKILL) as soon as the shot
+    is handed to it: Dask runs its tasks again on the other worker, every job
+    ends as on the clean local run, with bitwise the same outputs."""
+    import signal
+    import time
+
+    from distributed import Client
+    job, local_out, _ = local_run
+    # the `dask worker` processes run with one BLAS thread (a nanny would set it; here none)
+    address, procs, logs = _start_cluster(tmp_path, _env(OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1",
+                                                          MKL_NUM_THREADS="1"), nanny=False)
+    batch = None
+    try:
+        with Client(address, timeout="60s") as c:
+            by_pid = {pid: addr for addr, pid in c.run(os.getpid).items()}
+            assert set(by_pid) == {p.pid for p in procs[1:]}
+            batch = subprocess.Popen([sys.executable, "-m", "wearfit_usd", "batch", "-q", str(job), "-o",
+                                      str(tmp_path / "out"), "--scheduler", address],
+                                     env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+            first_seen: dict = {}
+            victim = None
+            deadline = time.monotonic() + 600
+            while victim is None:
+                assert batch.poll() is None, "the batch ended before a shot was handed to a worker"
+                assert time.monotonic() < deadline
+                now = time.monotonic()
+                for addr, keys in c.processing().items():
+                    for k in keys:
+                        first_seen.setdefault(k, now)
+                        # a shot handed over just now (it runs for seconds): kill its worker
+                        if str(k).startswith("animate-") and now - first_seen[k] < 1.0:
+                            victim = (addr, str(k))
+                time.sleep(0.05)
+            killed = next(p for p in procs[1:] if by_pid.get(p.pid) == victim[0])
+            os.kill(killed.pid, signal.SIGKILL)
+            killed.wait(timeout=60)
+            survivor = next(p for p in procs[1:] if p is not killed)
+            stdout, stderr = batch.communicate(timeout=900)
+        assert batch.returncode == 1, stderr  # the two jobs that fail on purpose
+    finally:
+        if batch is not None and batch.poll() is None:
+            batch.kill()
+            batch.wait(timeout=30)
+        _stop(procs[1:] + procs[:1])
+        logs.close()
+    rep = json.loads((tmp_path / "out" / "report.json").read_text())
+    local = {j["id"]: j for j in json.loads((local_out / "report.json").read_text())["jobs"]}
+    jobs = {j["id"]: j for j in rep["jobs"]}
+    # the local run's report may come from its --resume re-run, which leaves the previews out
+    assert {i for i in jobs if not i.startswith("preview/")} == {i for i in local if not i.startswith("preview/")}
+    for i, j in jobs.items():
+        if i not in local:
+            assert j["status"] == "ok", (i, j.get("error"))
+            continue
+        assert j["status"] == local[i]["status"], (i, j.get("error"))
+        if j["status"] == "failed":
+            assert j["error"] == local[i]["error"]
+        elif j["product"] != "preview":
+            assert usd_points(j["output"]) == usd_points(local[i]["output"]), i
+    # the shot that was running on the killed worker was run again by the other one
+    shot = next(j for i, j in jobs.items() if victim[1].startswith(f"animate-{i.split('/', 1)[1]}-"))
+    assert shot["status"] == "ok" and shot["worker_pid"] == survivor.pid
+    assert 1 <= rep["summary"]["plans_built"] <= 2

@@ -31,6 +31,7 @@ import numpy as np
 from ..dress.apply import apply as apply_plan
 from ..dress.apply import dress
 from ..dress.metrics import item_rigid_groups
+from ..dress.plan import DressPlan
 from ..dress.plan import plan as plan_dress
 from ..errors import NonFiniteError, USDInputError
 from ..fit.body_fit import fit_character
@@ -100,9 +101,12 @@ def _posed_skeleton(skeleton, world0):
 
 
 def animate(reference: Character, target: Character, motion, out_path, options: AnimateOptions | None = None,
-            ) -> AnimateReport:
+            ref_plan: DressPlan | None = None) -> AnimateReport:
     """Dress ``target`` with ``reference``'s items, animate it with ``motion``
-    (a :class:`bvh.BVHMotion`) and write the shot to ``out_path``."""
+    (a :class:`bvh.BVHMotion`) and write the shot to ``out_path``.
+    ``ref_plan``: the reference's dressing plan (:func:`dress.plan.plan` with
+    ``k=options.k``) built earlier, reused instead of a new one (it is left
+    unchanged, so one plan serves every clip and target)."""
     opt = options or AnimateOptions()
     rep = AnimateReport()
     t_all = time.perf_counter()
@@ -138,7 +142,8 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
     # one plan, on the reference in its rest pose: regions and bound triangles
     # are best found with the limbs apart (a posed body, hands hanging beside
     # a skirt, would hand skirt parts to the arms); the posed dressing rebinds it
-    ref_plan = plan_dress(reference, k=opt.k)
+    if ref_plan is None:
+        ref_plan = plan_dress(reference, k=opt.k)
     if opt.mode == "lbs" or opt.dress_pose == "bind":
         # dressed on the target's bind pose; frame 0 comes from the binding
         dressed = dress_items(reference, target, k=opt.k, untangle=opt.untangle, prepared=ref_plan,

@@ -7,14 +7,18 @@ Shared intermediate results, each computed once per batch:
 - ``fit``: the reference body fitted onto each target once
   (:func:`~wearfit_usd.fit.body_fit.fit_character`), used by the ``fit`` and the
   ``dress`` products, and cached on disk;
-- the dressing plan of each reference (:func:`~wearfit_usd.dress.plan.plan`)
-  is built once per worker process and reused by every target that worker
-  dresses (a plan holds a CHOLMOD factor, which cannot be pickled, so it
-  cannot travel between processes);
+- the dressing plan of each reference (:func:`~wearfit_usd.dress.plan.plan`):
+  a plan holds a CHOLMOD factor, which cannot be pickled, so it cannot travel
+  between processes; instead every task that needs it (``dress`` and
+  ``animate``, every target and clip) is pinned to one worker per reference
+  (:func:`assign_owners`; Dask's loose restrictions, so a lost worker's tasks
+  still move elsewhere), which builds the plan once and keeps it
+  (:func:`_plan_of`). Each record says whether its task built the plan
+  (``plan_built``); the report sums them;
 - ``preview`` renders the dressed target of the ``dress`` product.
 
 ``animate`` dresses each clip's first-frame pose itself (as ``wearfit animate``
-does) from the shared reads.
+does) from the shared reads and the reference's plan.
 
 Products are skipped entirely when their cached result is complete (with
 ``resume``); the intermediates are only submitted when some product needs them.
@@ -24,6 +28,7 @@ the problem); Dask reschedules the tasks of a lost worker by itself
 """
 from __future__ import annotations
 
+import functools
 import os
 import pickle
 import resource
@@ -54,6 +59,22 @@ FIT_OPTIONS = {"pose_align": True, "same_topology_shortcut": True}
 
 class JobError(RuntimeError):
     """A job's failure as one line (picklable, unlike errors with extra fields)."""
+
+
+def _fails_cleanly(task):
+    """A task whose :class:`JobError` carries no chained exception: Dask
+    pickles an error with its ``__context__``, and the project's errors with
+    extra fields cannot be unpickled, which would turn the message into a
+    ``JobError("...")`` repr."""
+    @functools.wraps(task)
+    def run(*args, **kwargs):
+        try:
+            return task(*args, **kwargs)
+        except JobError as exc:
+            error = JobError(str(exc))
+        raise error  # outside the handler: no context
+
+    return run
 
 
 # ----------------------------------------------------------------------------
@@ -121,6 +142,7 @@ class _Task:
                 "warnings": self.warnings, "worker_pid": os.getpid()}
 
 
+@_fails_cleanly
 def task_read(path: str, role: str):
     """Read one USD stage (a reference with its skeleton, a target with or without)."""
     with _Task(f"reading {role} {path}"):
@@ -129,6 +151,7 @@ def task_read(path: str, role: str):
         return read_character(path, require_skeleton=(role == "reference"))
 
 
+@_fails_cleanly
 def task_fit(reference, target, cache_root: str, key: str, resume: bool):
     """The reference body fitted onto the target (a :class:`FitResult`),
     loaded from the cache when ``resume`` and stored there."""
@@ -165,6 +188,7 @@ def _record(meta: dict, task: _Task, obj: Path, figures: dict, **extra) -> dict:
     return rec
 
 
+@_fails_cleanly
 def task_fit_product(reference, target, fit, meta: dict) -> dict:
     """Write the fitted body (as ``wearfit fit``)."""
     obj = Cache(meta["cache_root"]).object_path(meta["key"], meta["suffix"])
@@ -180,6 +204,7 @@ def task_fit_product(reference, target, fit, meta: dict) -> dict:
     return _record(meta, t, obj, figures)
 
 
+@_fails_cleanly
 def task_dress(reference, target, fit, plan_key: str, meta: dict) -> dict:
     """Dress the target with the reference's items (as ``wearfit dress``),
     on the shared fit and this worker's plan of the reference."""
@@ -199,8 +224,10 @@ def task_dress(reference, target, fit, plan_key: str, meta: dict) -> dict:
     return _record(meta, t, obj, figures, plan_built=built)
 
 
-def task_animate(reference, target, meta: dict) -> dict:
-    """One shot (as ``wearfit animate``), streamed to the cache."""
+@_fails_cleanly
+def task_animate(reference, target, plan_key: str, meta: dict) -> dict:
+    """One shot (as ``wearfit animate``), streamed to the cache, on this
+    worker's plan of the reference."""
     obj = Cache(meta["cache_root"]).object_path(meta["key"], meta["suffix"])
     with _Task(f"animating {meta['id']}") as t:
         clip = meta["clip"]
@@ -209,15 +236,18 @@ def task_animate(reference, target, meta: dict) -> dict:
         motion = read_bvh(clip["path"])
         opts = AnimateOptions(k=meta["k"], start=clip["start"], end=clip["end"], fps=meta["fps"],
                               measure_every=meta["measure_every"])
-        rep = animate(reference, target, motion, obj, opts)
+        p, built = _plan_of(reference, plan_key, meta["k"])
+        rep = animate(reference, target, motion, obj, opts, ref_plan=p)
         figures = {"frames": rep.frames, "fps": rep.fps,
                    "worst_frame_new_penetration_pct": 100 * rep.worst_frame_penetration,
                    "mean_new_penetration_pct": (100 * sum(rep.per_frame_penetration) / len(rep.per_frame_penetration)
                                                 if rep.per_frame_penetration else None),
+                   "motion_worst": rep.motion_worst, "cloth_vertices": rep.cloth_vertices,
                    "timings_s": {k: v for k, v in rep.timings.items() if not isinstance(v, dict)}}
-    return _record(meta, t, obj, figures)
+    return _record(meta, t, obj, figures, plan_built=built)
 
 
+@_fails_cleanly
 def task_preview(dressed, meta: dict) -> dict:
     """A front view of the dressed target (a PNG)."""
     from ..render.preview import render_frames  # pyrender/OpenGL: loaded by preview tasks only
@@ -226,7 +256,9 @@ def task_preview(dressed, meta: dict) -> dict:
     with _Task(f"rendering {meta['id']}") as t:
         images = render_frames(src, size=tuple(meta["size"]), camera="front", show_progress=False)
         write_png(images[0], obj)
-    return _record(meta, t, obj, {"size": meta["size"]})
+    # a dressing made for this preview only (no dress job) counts its plan here
+    built = bool(meta.get("own_dress") and isinstance(dressed, dict) and dressed.get("plan_built"))
+    return _record(meta, t, obj, {"size": meta["size"]}, plan_built=built)
 
 
 # ----------------------------------------------------------------------------
@@ -259,10 +291,50 @@ def _job_key(job: Job, digests: dict, opts: dict) -> str:
 
 
 MEASURE_EVERY = 5  # exact penetration figures of a shot every N frames (does not change the shot)
+PLANNED = ("dress", "animate", "preview")  # products whose tasks need the reference's plan (preview: its dressing)
+
+
+def assign_owners(jobs: list[Job], workers: list[str], per_reference: int = 1) -> dict[Path, list[str]]:
+    """The workers that build and use each reference's dressing plan.
+
+    References are dealt out heaviest first to the least loaded workers, the
+    load being the number of jobs that need the plan (``dress``, ``animate``
+    and the dressing behind a ``preview``), shared evenly by a reference's
+    workers; ties go to the worker listed first.
+
+    Parameters
+    ----------
+    jobs : list of Job
+        The jobs to run.
+    workers : list of str
+        Worker addresses (sorted by the caller for a reproducible deal).
+    per_reference : int
+        Workers per reference (each builds the plan once): 1 builds every
+        plan once; more spread a reference's shots over more workers.
+
+    Returns
+    -------
+    dict
+        ``{reference path: [worker address, ...]}``; empty without workers.
+    """
+    if not workers:
+        return {}
+    n = max(1, min(per_reference, len(workers)))
+    load: dict[Path, int] = {}
+    for j in jobs:
+        load[j.reference] = load.get(j.reference, 0) + (j.product in PLANNED)
+    busy = dict.fromkeys(workers, 0.0)
+    owners = {}
+    for ref in sorted(load, key=lambda r: -load[r]):  # stable: file order among equals
+        group = sorted(workers, key=lambda a: busy[a])[:n]  # stable: listed order among equals
+        owners[ref] = group
+        for w in group:
+            busy[w] += load[ref] / n
+    return owners
 
 
 def run_batch(jobset: JobSet, outdir, client, resume: bool = False, previews: bool = True,
-              on_done=None) -> BatchResult:
+              on_done=None, plan_workers: int = 1) -> BatchResult:
     """Run every job of ``jobset`` on the Dask ``client``; place the products under ``outdir``.
 
     Parameters
@@ -279,6 +351,8 @@ def run_batch(jobset: JobSet, outdir, client, resume: bool = False, previews: bo
         Run the ``preview`` jobs (else they are left out of the batch).
     on_done : callable, optional
         Called with each finished job's record (progress).
+    plan_workers : int
+        Workers per reference for its dressings and shots (:func:`assign_owners`).
 
     Returns
     -------
@@ -350,7 +424,17 @@ def run_batch(jobset: JobSet, outdir, client, resume: bool = False, previews: bo
                     fps=opts["fps"], size=opts["preview_size"], measure_every=MEASURE_EVERY)
 
     plan_keys = {r: result_key("plan", [digests[r]], {"k": opts["k"]}) for r in digests}
-    futures = {}
+    # each reference's planned tasks on its worker(s) (loose: elsewhere if lost), submitted
+    # reference by reference so a worker owning several finishes one plan's tasks first
+    owners = assign_owners([j for j, _ in todo], sorted(client.scheduler_info().get("workers", {})), plan_workers)
+    order = {r: i for i, r in enumerate(dict.fromkeys(j.reference for j in jobs))}
+    todo.sort(key=lambda jk: order[jk[0].reference])
+
+    def pinned(job: Job) -> dict:
+        group = owners.get(job.reference)
+        return {"workers": group, "allow_other_workers": True} if group else {}
+
+    futures, own_dress = {}, set()
     for job, key in todo:
         name = f"{job.product}-{job.name}-{key[:8]}-{run}"
         ref, tgt = read(job.reference, "reference"), None
@@ -360,10 +444,11 @@ def run_batch(jobset: JobSet, outdir, client, resume: bool = False, previews: bo
             f = client.submit(task_fit_product, ref, tgt, fit(job), meta(job, key), pure=False, key=name)
         elif job.product == "dress":
             f = client.submit(task_dress, ref, tgt, fit(job), plan_keys[job.reference], meta(job, key),
-                              pure=False, key=name)
+                              pure=False, key=name, **pinned(job))
             dressed[job.reference, job.target] = f
         elif job.product == "animate":
-            f = client.submit(task_animate, ref, tgt, meta(job, key), pure=False, key=name)
+            f = client.submit(task_animate, ref, tgt, plan_keys[job.reference], meta(job, key), pure=False,
+                              key=name, **pinned(job))
         else:
             continue
         futures[f] = job
@@ -386,9 +471,11 @@ def run_batch(jobset: JobSet, outdir, client, resume: bool = False, previews: bo
                     src = client.submit(task_dress, read(job.reference, "reference"), read(job.target, "target"),
                                         fit(djob), plan_keys[job.reference],
                                         dict(meta(job, dkey), id=djob.id, product="dress"), pure=False,
-                                        key=f"dress-{djob.name}-{dkey[:8]}-{run}")
+                                        key=f"dress-{djob.name}-{dkey[:8]}-{run}", **pinned(job))
+                    own_dress.add(pair)
             dressed[pair] = src
-        f = client.submit(task_preview, src, meta(job, key), pure=False, key=f"preview-{job.name}-{key[:8]}-{run}")
+        f = client.submit(task_preview, src, dict(meta(job, key), own_dress=pair in own_dress), pure=False,
+                          key=f"preview-{job.name}-{key[:8]}-{run}")
         futures[f] = job
 
     for job in jobs:  # known before running: cache hits and missing inputs
@@ -413,6 +500,7 @@ def run_batch(jobset: JobSet, outdir, client, resume: bool = False, previews: bo
             on_done(rec)
         fut.release()
     for rec in records.values():
-        for k in ("cache_root", "suffix", "size", "measure_every"):
+        for k in ("cache_root", "suffix", "size", "measure_every", "own_dress"):
             rec.pop(k, None)
+    counts["owners"] = {str(r): w for r, w in owners.items()}
     return BatchResult([records[j] for j in jobs], time.perf_counter() - t_start, counts)

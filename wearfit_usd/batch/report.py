@@ -16,12 +16,16 @@ from .cache import atomic_write_bytes, code_version
 
 def summary(records: list[dict], seconds: float) -> dict:
     """Counts over the jobs: ok / failed, cache hits / misses, jobs per minute
-    (of the jobs computed in this run), the highest peak memory."""
+    (of the jobs computed in this run), the highest peak memory, and the
+    dressing plans built in this run (in all and per reference: a task that
+    built its plan says so in ``plan_built``)."""
     status = Counter(r["status"] for r in records)
     cache = Counter(r.get("cache", "miss") for r in records)
     computed = [r for r in records if r.get("cache") == "miss" and r["status"] == "ok"]
     peaks = [r["peak_rss_mb"] for r in computed if r.get("peak_rss_mb") is not None]
-    return {"jobs": len(records), "ok": status.get("ok", 0), "failed": status.get("failed", 0),
+    plans = Counter(Path(r["reference"]).name for r in computed if r.get("plan_built"))
+    return {"plans_built": sum(plans.values()), "plans_built_by_reference": dict(sorted(plans.items())),
+            "jobs": len(records), "ok": status.get("ok", 0), "failed": status.get("failed", 0),
             "cache_hits": cache.get("hit", 0), "cache_misses": cache.get("miss", 0),
             "computed": len(computed), "wall_seconds": round(seconds, 3),
             "jobs_per_minute": round(60.0 * len(computed) / seconds, 2) if seconds > 0 and computed else 0.0,
@@ -36,6 +40,14 @@ def _fmt(v, nd=2):
     return str(v)
 
 
+def _worst(figures: dict, measure: str) -> float | None:
+    """The largest worst-frame value of a motion measure over a shot's items
+    (:func:`~wearfit_usd.animate.measures.worst_frames`), None if none applies."""
+    vals = [m[measure]["value"] for m in (figures.get("motion_worst") or {}).values()
+            if m.get(measure, {}).get("value") is not None]
+    return max(vals) if vals else None
+
+
 def _main_figures(rec: dict) -> str:
     f = rec.get("figures") or {}
     p = rec["product"]
@@ -47,7 +59,9 @@ def _main_figures(rec: dict) -> str:
                 f"{_fmt(f.get('clearance_change_p95_mm'))} mm")
     if p == "animate":
         return (f"{f.get('frames')} frames; new penetration worst frame "
-                f"{_fmt(f.get('worst_frame_new_penetration_pct'))} %, mean {_fmt(f.get('mean_new_penetration_pct'))} %")
+                f"{_fmt(f.get('worst_frame_new_penetration_pct'))} %, mean {_fmt(f.get('mean_new_penetration_pct'))} %"
+                f"; worst item: stretch p99 {_fmt(_worst(f, 'stretch_p99'))}x, coverage loss "
+                f"{_fmt(_worst(f, 'coverage_loss_pct'))} %, separation p95 {_fmt(_worst(f, 'separation_p95_mm'))} mm")
     return ""
 
 
@@ -66,7 +80,8 @@ def contact_sheets(records: list[dict], outdir: Path) -> list[Path]:
     return written
 
 
-def write_report(records: list[dict], outdir, seconds: float, jobs_file, cluster: dict) -> dict:
+def write_report(records: list[dict], outdir, seconds: float, jobs_file, cluster: dict,
+                 intermediates: dict | None = None) -> dict:
     """Write ``report.json``, ``report.md`` and the contact sheets under ``outdir``.
 
     Parameters
@@ -81,6 +96,9 @@ def write_report(records: list[dict], outdir, seconds: float, jobs_file, cluster
         The job file (named in the report).
     cluster : dict
         The scheduler address, worker count, dashboard link.
+    intermediates : dict, optional
+        The shared tasks submitted (reads, fits) and each reference's plan
+        worker (:attr:`.graph.BatchResult.intermediates`).
 
     Returns
     -------
@@ -91,13 +109,15 @@ def write_report(records: list[dict], outdir, seconds: float, jobs_file, cluster
     summ = summary(records, seconds)
     sheets = [str(p) for p in contact_sheets(records, outdir)]
     doc = {"jobs_file": str(jobs_file), "code_version": code_version(), "cluster": cluster,
-           "summary": summ, "contact_sheets": sheets, "jobs": records}
+           "summary": summ, "intermediates": intermediates or {}, "contact_sheets": sheets, "jobs": records}
     atomic_write_bytes(outdir / "report.json", json.dumps(doc, indent=1, default=float).encode())
     lines = [f"# wearfit batch: {Path(jobs_file).name}", "",
              f"{summ['ok']} of {summ['jobs']} jobs ok, {summ['failed']} failed; cache hits {summ['cache_hits']}, "
              f"computed {summ['computed']}; {summ['wall_seconds']:.1f} s wall, {summ['jobs_per_minute']} jobs/min on "
              f"{cluster.get('workers')} worker(s) ({cluster.get('scheduler')}); peak worker memory "
-             f"{_fmt(summ['max_peak_rss_mb'], 0)} MiB", ""]
+             f"{_fmt(summ['max_peak_rss_mb'], 0)} MiB; dressing plans built {summ['plans_built']}"
+             + (f" ({', '.join(f'{k}: {v}' for k, v in summ['plans_built_by_reference'].items())})"
+                if summ["plans_built"] else ""), ""]
     failed = [r for r in records if r["status"] == "failed"]
     if failed:
         lines += ["## Failures", ""] + [f"- `{r['id']}`: {r['error']}" for r in failed] + [""]
