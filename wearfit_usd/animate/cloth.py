@@ -58,13 +58,25 @@ import math
 import time
 
 import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
 from ..dress import regions as R
 from ..geometry.closest import VertexNormals
 from ..geometry.mesh import adjacency, similarity_fit
 from ..kernels import HAVE_NUMBA, RadiusGrid
-from ..kernels.cloth import cloth_frame
+from ..kernels.cloth import (
+    ClothBody,
+    ClothEdges,
+    ClothParams,
+    ClothSamples,
+    ClothState,
+    ClothTargets,
+    ClothTethers,
+    cloth_frame,
+    make_scratch,
+)
 from .loose import cloth_weights, smoothstep
 
 GRAVITY = (0.0, -9.81, 0.0)  # m/s^2, internal space (Y up)
@@ -85,6 +97,7 @@ RESEED_EVERY = 8             # searches between searches of every sample (the ke
 SEED_REACH = 0.5             # m: the first search of each sample's nearest body vertex
 GRID_CELL = 0.02             # m: cell of the nearest-body-vertex grid
 REACH = 0.02                 # m: body farther than this (plus its motion this frame and gap) is not tested
+TETHER_SLACK = 0.02          # a free vertex stays within (1 + this) x its rest distance along the cloth from its anchor
 
 
 def colour_edges(edges: np.ndarray, n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -147,6 +160,34 @@ def body_graph(faces: np.ndarray, n: int, keep: np.ndarray | None = None
     return indptr, indices, table
 
 
+def tethers(edges: np.ndarray, rest: np.ndarray, n_free: int, n: int, slack: float | None) -> ClothTethers:
+    """Each free particle's anchor, the kinematic particle (index >= n_free)
+    nearest to it along the cloth's edges (Dijkstra over the rest lengths),
+    and the tether's length, that distance times ``1 + slack``.
+
+    Parameters
+    ----------
+    edges : (E, 2) particle pairs; rest (E,) their lengths; n particles, the
+        first n_free simulated. slack: None for no tethers.
+
+    Returns
+    -------
+    :class:`kernels.cloth.ClothTethers`: anchor (n_free,) (-1 where no
+    kinematic particle is reachable, or no tethers), length (n_free,).
+    """
+    anchor = np.full(n_free, -1, dtype=np.int64)
+    length = np.full(n_free, np.inf)
+    if slack is None or n <= n_free or len(edges) == 0:
+        return ClothTethers(anchor, length)
+    g = sp.csr_matrix((np.maximum(rest, 1e-9), (edges[:, 0], edges[:, 1])), shape=(n, n))
+    dist, _, src = dijkstra(g, directed=False, indices=np.arange(n_free, n), min_only=True,
+                            return_predecessors=True)
+    ok = np.isfinite(dist[:n_free]) & (src[:n_free] >= 0)
+    anchor[ok] = src[:n_free][ok]
+    length[ok] = dist[:n_free][ok] * (1.0 + float(slack))
+    return ClothTethers(anchor, np.ascontiguousarray(length))
+
+
 def default_collider(plan, n: int) -> np.ndarray:
     """(n,) bool: the body vertices loose parts collide with: all but the
     arms when the plan knows the body's regions. A hand hanging beside a
@@ -174,8 +215,12 @@ class ClothSolver:
     weights : (M,) cloth weights (default :func:`loose.cloth_weights`).
     collider : (N,) bool or indices, the body vertices the cloth collides
         with (default :func:`default_collider`).
-    rest_points : (M, 3) the static dress the edge lengths are kept from
-        (default ``item_points0``).
+    rest_points : (M, 3) the cloth's rest state, whose edge lengths it
+        keeps: the items dressed statically on the body's bind pose (the
+        relaxed cut: legs together, as the motion measures judge stretch
+        against; :meth:`preroll` starts the cloth from it). Default
+        ``item_points0``, and :meth:`preroll` takes them from the binding on
+        the bind pose.
     compiled : numba kernel (default: when installed) or its numpy twin.
     Other keywords override the module constants of the same name.
     """
@@ -186,7 +231,8 @@ class ClothSolver:
                  attach_alpha: float = ATTACH_ALPHA, attach_power: float = ATTACH_POWER,
                  stretch_alpha: float = STRETCH_ALPHA, compress_alpha: float = COMPRESS_ALPHA,
                  damping: float = DAMPING, friction: float = FRICTION, margin: float = MARGIN,
-                 reach: float = REACH, edge_samples: bool = True, collider: np.ndarray | None = None):
+                 reach: float = REACH, edge_samples: bool = True, collider: np.ndarray | None = None,
+                 tether_slack: float | None = TETHER_SLACK):
         pts0 = np.ascontiguousarray(item_points0, dtype=np.float64)
         body0 = np.ascontiguousarray(body_points0, dtype=np.float64)
         self.faces = np.ascontiguousarray(body_faces, dtype=np.int64)
@@ -200,6 +246,7 @@ class ClothSolver:
         self.stretch_alpha, self.compress_alpha = float(stretch_alpha), float(compress_alpha)
         self.damping, self.friction, self.reach = float(damping), float(friction), float(reach)
         self.timings = {"frames": 0, "solve_s": 0.0, "solve_cpu_s": 0.0}
+        self.rest_points = None
         if self.n_free == 0:
             return
         e = np.asarray(plan.mesh.edges, dtype=np.int64)
@@ -219,6 +266,10 @@ class ClothSolver:
         self.inv_m = np.zeros(len(self.particles))
         self.inv_m[:self.n_free] = 1.0
         self.att_alpha = float(attach_alpha) * w[self.free] ** float(attach_power)
+        self.tether_slack = tether_slack
+        self.tethers = tethers(self.edges, self.rest, self.n_free, len(self.particles), tether_slack)
+        if rest_points is not None:
+            self.rest_points = np.asarray(rest_points, dtype=np.float64)
         # collision samples: the free particles and the midpoints of the
         # edges (a knee between the vertices of a coarse skirt meets one);
         # the particles are one colour, the edges keep theirs
@@ -263,8 +314,19 @@ class ClothSolver:
         self.clear = np.full(len(self.samples), -np.inf)
         self._seek(SEED_REACH)
         self._frame, self._since = 1, 0.0
-        self._scratch = (np.empty(len(self.edges)), np.empty((self.n_free, 3)), np.empty_like(self.x),
-                         np.empty((len(self.samples), 3)))
+        self._scratch = make_scratch(len(self.edges), self.n_free, len(self.particles), len(self.samples))
+
+    def set_rest(self, points: np.ndarray, keep: bool = True) -> None:
+        """Take the edges' rest lengths (and the tethers) from the items
+        (M, 3); ``keep``: they are the cloth's rest state (:meth:`preroll`
+        starts from them, turned onto the body)."""
+        if keep:
+            self.rest_points = np.asarray(points, dtype=np.float64)
+        if self.n_free == 0:
+            return
+        xr = np.asarray(points, dtype=np.float64)[self.particles]
+        self.rest = np.linalg.norm(xr[self.edges[:, 0]] - xr[self.edges[:, 1]], axis=1)
+        self.tethers = tethers(self.edges, self.rest, self.n_free, len(self.particles), self.tether_slack)
 
     def _body_normals(self, body_points: np.ndarray) -> np.ndarray:
         """(C, 3) unit normals of the collider's vertices on the whole body (N, 3)."""
@@ -343,7 +405,15 @@ class ClothSolver:
         # vertex positions across a half turn would pass the body through itself
         _, rot, shift = similarity_fit(np.asarray(body_from, dtype=np.float64), b_to, scale=False)
         b_from = np.asarray(body_from, dtype=np.float64) @ rot + shift
-        self.reset(b_from, bound_at(b_from))
+        relaxed = bound_at(b_from)
+        if self.rest_points is None:
+            self.set_rest(relaxed, keep=False)
+        elif self.rest_points is not None and self.n_free:
+            # the cloth starts as its rest state (the static dress on the
+            # bind pose), turned with the body
+            relaxed = relaxed.copy()
+            relaxed[self.free] = self.rest_points[self.free] @ rot + shift
+        self.reset(b_from, relaxed)
         bound_to = bound_at(b_to)
         if self.n_free == 0:
             return bound_to
@@ -399,10 +469,12 @@ class ClothSolver:
             else:
                 self._seek(radius, np.flatnonzero(self.clear < radius))
             self._frame += 1
-        cloth_frame(self.x, self.v, self.t0, t1, self.inv_m, self.n_free, self.att_alpha, self.edges, self.rest,
-                    self.colour_ptr, self.stretch_alpha, self.compress_alpha, self.samples, self.sample_ptr,
-                    self.hint, self.margin, self.clear, move, self.gap, self.b0, b1, self.n0, n1, self.adjacency,
-                    self.gravity, self.damping, self.friction, float(dt), self.substeps(dt), self.iterations,
+        cloth_frame(ClothState(self.x, self.v, self.inv_m, self.att_alpha), ClothTargets(self.t0, t1),
+                    ClothEdges(self.edges, self.rest, self.colour_ptr), self.tethers,
+                    ClothSamples(self.samples, self.sample_ptr, self.hint, self.margin, self.clear),
+                    ClothBody(self.b0, b1, self.n0, n1, *self.adjacency, move, self.gap),
+                    ClothParams(self.gravity, self.damping, self.friction, self.stretch_alpha, self.compress_alpha,
+                                float(dt), self.substeps(dt), self.iterations),
                     compiled=self.compiled, scratch=self._scratch)
         self.b0, self.n0, self.t0 = b1, n1, t1
         self.grid.update(b1)
