@@ -95,7 +95,7 @@ EDGE_SAMPLE_LENGTH = 0.03    # m: edges longer than this get a collision sample 
 SEEK_INTERVAL = 1.0 / 30.0   # s between grid searches of the nearest body vertex of the samples near the body
 RESEED_EVERY = 8             # searches between searches of every sample (the kernel walks from them between)
 SEED_REACH = 0.5             # m: the first search of each sample's nearest body vertex
-GRID_CELL = 0.02             # m: cell of the nearest-body-vertex grid
+GRID_CELL = 0.05             # m: cell of the nearest-body-vertex grid (0.02: the search took 3x as long)
 REACH = 0.02                 # m: body farther than this (plus its motion this frame and gap) is not tested
 TETHER_SLACK = 0.02          # a free vertex stays within (1 + this) x its rest distance along the cloth from its anchor
 
@@ -247,6 +247,14 @@ class ClothSolver:
         self.damping, self.friction, self.reach = float(damping), float(friction), float(reach)
         self.timings = {"frames": 0, "solve_s": 0.0, "solve_cpu_s": 0.0}
         self.rest_points = None
+        # skirt items (the plan binds them to the hips): the ones a first
+        # frame with a leg forward crumples; :meth:`set_rest` applies to them
+        self.skirt = np.ones(len(w), dtype=bool)
+        regions = getattr(plan, "regions", None)
+        if regions is not None and hasattr(plan, "item_slices"):
+            self.skirt[:] = False
+            for item, sl in zip(plan.items, plan.item_slices()):
+                self.skirt[sl] = item.name in regions.skirt_items
         if self.n_free == 0:
             return
         e = np.asarray(plan.mesh.edges, dtype=np.int64)
@@ -317,15 +325,18 @@ class ClothSolver:
         self._scratch = make_scratch(len(self.edges), self.n_free, len(self.particles), len(self.samples))
 
     def set_rest(self, points: np.ndarray, keep: bool = True) -> None:
-        """Take the edges' rest lengths (and the tethers) from the items
-        (M, 3); ``keep``: they are the cloth's rest state (:meth:`preroll`
-        starts from them, turned onto the body)."""
+        """Take the skirt items' edge rest lengths (and the tethers) from the
+        items (M, 3); ``keep``: they are the cloth's rest state
+        (:meth:`preroll` starts the skirts from them, turned onto the body).
+        Other loose parts (hair, a cape) keep the lengths of the dress they
+        were built on: the first frame does not crumple them."""
         if keep:
             self.rest_points = np.asarray(points, dtype=np.float64)
         if self.n_free == 0:
             return
         xr = np.asarray(points, dtype=np.float64)[self.particles]
-        self.rest = np.linalg.norm(xr[self.edges[:, 0]] - xr[self.edges[:, 1]], axis=1)
+        rest = np.linalg.norm(xr[self.edges[:, 0]] - xr[self.edges[:, 1]], axis=1)
+        self.rest = np.where(self.skirt[self.particles[self.edges[:, 0]]], rest, self.rest)
         self.tethers = tethers(self.edges, self.rest, self.n_free, len(self.particles), self.tether_slack)
 
     def _body_normals(self, body_points: np.ndarray) -> np.ndarray:
@@ -412,7 +423,8 @@ class ClothSolver:
             # the cloth starts as its rest state (the static dress on the
             # bind pose), turned with the body
             relaxed = relaxed.copy()
-            relaxed[self.free] = self.rest_points[self.free] @ rot + shift
+            rows = self.free[self.skirt[self.free]]
+            relaxed[rows] = self.rest_points[rows] @ rot + shift
         self.reset(b_from, relaxed)
         bound_to = bound_at(b_to)
         if self.n_free == 0:

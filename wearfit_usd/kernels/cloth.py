@@ -21,7 +21,8 @@ vertex normals, renormalised, and the targets). Each substep:
    ``u = (t1 - t0) / dt`` decays as ``v <- u + (v - u) exp(-damping h)``
    (damping that does not slow a garment walking with its body), gravity
    ``v <- v + g h``, and ``p = x + h v``;
-2. ``n_iter`` passes over the constraints, each as XPBD: for a constraint
+2. ``n_iter`` passes over the cloth's own constraints (attachment,
+   tethers, edges), then one over the body collisions; each as XPBD: for a constraint
    ``C(p)`` with compliance ``alpha`` (inverse stiffness) and accumulated
    multiplier ``lambda`` (zeroed at the start of the substep),
 
@@ -46,14 +47,17 @@ vertex normals, renormalised, and the targets). Each substep:
      projected hard (the anchor does not move): the cloth as a whole cannot
      stretch away from where it hangs, whatever the chain of edges between
      (edges alone, one pass a substep, let a long skirt sag and its hem
-     be pulled out);
+     be pulled out); projected before the edges, which then smooth what
+     the tethers moved (a tether pulling straight through a shoulder the
+     hair lies on would otherwise hold edges stretched against the
+     collision);
    * body collision (after the others, so it has the last word), per
      collision sample: a free particle, or the midpoint ``q = (p_a + p_b) / 2``
      of an edge (a knee between the vertices of a coarse skirt meets one).
      The body is the skin at ``b(s)``; the sample's nearest body vertex
      ``j`` is followed by a greedy walk over the body's vertex graph from
-     the last one (``hint``, re-seeded from a grid search by the caller), on
-     the first pass of the frame's first substep; ``n_j`` is its unit normal,
+     the last one (``hint``, re-seeded from a grid search by the caller), in
+     the frame's first substep; ``n_j`` is its unit normal,
      ``d = (q - b_j) . n_j`` the signed distance estimate, and
      ``C = d - margin >= 0`` is projected hard (``alpha = 0``): with
      ``grad_a C = g_a n`` (``g = 1`` for a particle, ``1/2`` for each end of
@@ -342,19 +346,24 @@ def _frame_loop(state, tg, ed, te, sm, body, prm, scratch):
     for k_sub in range(n_sub):
         s_prev = k_sub / n_sub
         s = (k_sub + 1) / n_sub
+        # predict, and the first pass's attachment (its multiplier starts at 0)
         for i in range(n_free):
+            a = att_alpha[i] / (hs * hs)
+            wi = inv_m[i]
             for c in range(3):
                 u = (t1[i, c] - t0[i, c]) / dt
                 vc = u + (v[i, c] - u) * decay + gravity[c] * hs
                 v[i, c] = vc
-                p[i, c] = x[i, c] + vc * hs
+                pc = x[i, c] + vc * hs
+                dl = -(pc - (t0[i, c] * (1.0 - s) + t1[i, c] * s)) / (wi + a)
+                lam_a[i, c] = dl
+                p[i, c] = pc + wi * dl
         for i in range(n_free, n_all):
             for c in range(3):
                 p[i, c] = t0[i, c] * (1.0 - s) + t1[i, c] * s
         lam_e[:] = 0.0
-        lam_a[:] = 0.0
         for it in range(n_iter):
-            for i in range(n_free):
+            for i in range(n_free if it > 0 else 0):
                 a = att_alpha[i] / (hs * hs)
                 wi = inv_m[i]
                 for c in range(3):
@@ -362,6 +371,8 @@ def _frame_loop(state, tg, ed, te, sm, body, prm, scratch):
                     dl = (-C - a * lam_a[i, c]) / (wi + a)
                     lam_a[i, c] += dl
                     p[i, c] += wi * dl
+            for i in range(n_free):
+                _tether(p, i, te.anchor, te.length)
             for e in range(edges.shape[0]):
                 ia = edges[e, 0]
                 ib = edges[e, 1]
@@ -384,11 +395,9 @@ def _frame_loop(state, tg, ed, te, sm, body, prm, scratch):
                 p[ib, 0] -= wb * f * dx
                 p[ib, 1] -= wb * f * dy
                 p[ib, 2] -= wb * f * dz
-            for i in range(n_free):
-                _tether(p, i, te.anchor, te.length)
-            for k in range(samples.shape[0]):
-                _collide(k, p, x, hint, samples, margin, clear, q0, move, gap, friction, inv_m, b0, b1, n0, n1,
-                         adj_ptr, adj_idx, s_prev, s, it == 0 and k_sub == 0)
+        for k in range(samples.shape[0]):
+            _collide(k, p, x, hint, samples, margin, clear, q0, move, gap, friction, inv_m, b0, b1, n0, n1,
+                     adj_ptr, adj_idx, s_prev, s, k_sub == 0)
         for i in range(n_free):
             for c in range(3):
                 v[i, c] = (p[i, c] - x[i, c]) / hs
@@ -545,10 +554,11 @@ def _frame_numpy(state, tg, ed, te, sm, body, prm):
         tgt = t0[:n_free] * (1.0 - s) + t1[:n_free] * s
         lam_e = np.zeros(len(edges))
         lam_a = np.zeros((n_free, 3))
-        for it in range(n_iter):
+        for _ in range(n_iter):
             dl = (-(p[:n_free] - tgt) - a_att * lam_a) / (wi + a_att)
             lam_a += dl
             p[:n_free] += wi * dl
+            _tether_numpy(p, te.anchor, te.length)
             for c in range(len(colour_ptr) - 1):
                 sl = slice(colour_ptr[c], colour_ptr[c + 1])
                 ia, ib = edges[sl, 0], edges[sl, 1]
@@ -563,11 +573,10 @@ def _frame_numpy(state, tg, ed, te, sm, body, prm):
                 f = np.where(ok, d_l / np.where(ok, ln, 1.0), 0.0)
                 p[ia] += (wa * f)[:, None] * dvec
                 p[ib] -= (wb * f)[:, None] * dvec
-            _tether_numpy(p, te.anchor, te.length)
-            for c in range(len(sample_ptr) - 1):
-                rows = np.arange(sample_ptr[c], sample_ptr[c + 1])
-                _collide_numpy(p, x, hint, samples, margin, clear, q0, move, gap, friction, inv_m, b0, b1, n0, n1,
-                               adj_table, s_prev, s, rows, it == 0 and k == 0)
+        for c in range(len(sample_ptr) - 1):
+            rows = np.arange(sample_ptr[c], sample_ptr[c + 1])
+            _collide_numpy(p, x, hint, samples, margin, clear, q0, move, gap, friction, inv_m, b0, b1, n0, n1,
+                           adj_table, s_prev, s, rows, k == 0)
         v[:] = (p[:n_free] - x[:n_free]) / hs
         x[:] = p
     e = 0.5 * (x[samples[:, 0]] + x[samples[:, 1]]) - q0
