@@ -14,8 +14,12 @@ them. :class:`ClothSolver` simulates them instead, as cloth:
   ``ATTACH_ALPHA * w ** ATTACH_POWER``: stiff next to the attachment line,
   soft where the cloth hangs free (there it only keeps the garment's cut:
   a skirt keeps its flare, hair its shape, and settles back to it);
-* the edges keep their lengths in the static dress (stiff against stretch,
-  softer against compression);
+* the edges keep their lengths in the rest state (stiff against stretch,
+  softer against compression): for skirts the items dressed statically on
+  the bind pose (the relaxed cut, :meth:`ClothSolver.set_rest`), else the
+  static dress of the first frame; tethers keep every free vertex within
+  ``1 + TETHER_SLACK`` of its rest distance along the cloth from the
+  attachment;
 * the body is the collider: every free vertex, and the midpoint of every
   edge longer than ``EDGE_SAMPLE_LENGTH``, stays ``MARGIN`` outside the skin
   of this frame (or its frame-0 clearance where that is less), with
@@ -38,14 +42,12 @@ first frame by :meth:`ClothSolver.preroll` (the static dress of a walking
 pose can have a leg through a skirt bound to the hips: no collision could
 tell from there which side the cloth belongs on).
 
-Measured (CMU walk, ``ref_female_longskirt`` on ``body_female_heavy``, 2,076
-simulated vertices, native 120 fps, one core of a loaded machine): the leg
-skin inside the skirt that comes out through it drops from 65 % to 2.3 % in
-the worst frame, the skirt's edge stretch from p99 6.0x / max 21x to 2.0x /
-4.2x against the static dress (first 100 frames), at 2.9 ms per frame (4.2 ms
-for 5,075 vertices: the skirt and all of the bob's loose hair). Most of the remaining
-stretch is the skirt widening round the stride: it is as wide as it was cut,
-and the legs, which may not come through, are farther apart.
+Measured (CMU walk, ``ref_female_longskirt`` on ``body_female_heavy``, 2,075
+simulated vertices, 45 frames at 30 fps; see ``docs/motion_loose_parts.md``):
+the skirt's stretch against the static dress on the bind pose, beyond the
+body's own, p99 1.58x / max 2.9x in the worst frame (2.35x / 5.7x before the
+relaxed-cut rest state, the tethers and 3 passes). Most of what remains is
+the hem at the longest stride: the legs' hull there is longer than the hem.
 
 Usage: ``solver = ClothSolver(plan, body_faces, body_points0, item_points0)``
 on the dressed frame 0, then ``points = solver.step(body_f, bound_f, dt)``
@@ -81,7 +83,7 @@ from .loose import cloth_weights, smoothstep
 
 GRAVITY = (0.0, -9.81, 0.0)  # m/s^2, internal space (Y up)
 MAX_SUBSTEP = 1.0 / 240.0    # s: longest substep
-ITERATIONS = 1               # constraint passes per substep
+ITERATIONS = 3               # passes over the cloth's own constraints per substep (1: the pencil skirt stretched 1.3x)
 ATTACH_ALPHA = 0.02          # s^2: attachment compliance of fully free vertices (a ~1 s swing)
 ATTACH_POWER = 2.0           # compliance ~ w^power: stiff near the attachment line
 STRETCH_ALPHA = 0.0          # s^2: edges against stretch (0: as stiff as the substeps allow)
