@@ -96,6 +96,21 @@ def test_tethers_keep_a_soft_sheet_from_sagging():
     assert low[0.02] > -0.8 * 1.02 - 1e-6
 
 
+def test_set_rest_changes_only_the_hanging_part():
+    pts, faces = grid_sheet(9, 0.8)
+    w = np.clip(pts[:, 0] / 0.4, 0.0, 1.0)            # 0 at x = 0 rising to 1 from x = 0.4
+    bp, bf = FAR_BODY
+    cs = ClothSolver(sheet_plan(faces), bf, bp, pts, weights=w)
+    before = cs.rest.copy()
+    cs.set_rest(pts * 1.1)
+    pe = cs.particles[cs.edges]
+    hang = (w[pe] >= 0.5).all(axis=1)
+    assert hang.any() and (~hang).any()
+    np.testing.assert_allclose(cs.rest[hang], 1.1 * before[hang])
+    np.testing.assert_array_equal(cs.rest[~hang], before[~hang])
+    assert np.isfinite(cs.tethers.length[w[cs.free] >= 0.5]).all()
+
+
 def test_hanging_sheet_settles_to_its_length():
     # a 1 m sheet, pinned along x = 0, starts horizontal and falls: it must hang
     # straight down, 1 m long, edges within a few per cent of their length

@@ -15,11 +15,11 @@ them. :class:`ClothSolver` simulates them instead, as cloth:
   soft where the cloth hangs free (there it only keeps the garment's cut:
   a skirt keeps its flare, hair its shape, and settles back to it);
 * the edges keep their lengths in the rest state (stiff against stretch,
-  softer against compression): for skirts the items dressed statically on
-  the bind pose (the relaxed cut, :meth:`ClothSolver.set_rest`), else the
-  static dress of the first frame; tethers keep every free vertex within
-  ``1 + TETHER_SLACK`` of its rest distance along the cloth from the
-  attachment;
+  softer against compression): the static dress of the first frame, or for
+  the hanging part of skirts the static dress on the bind pose given to
+  :meth:`ClothSolver.set_rest` (the relaxed cut: ``animate`` does); tethers
+  keep every free vertex within ``1 + TETHER_SLACK`` of its rest distance
+  along the cloth from the attachment;
 * the body is the collider: every free vertex, and the midpoint of every
   edge longer than ``EDGE_SAMPLE_LENGTH``, stays ``MARGIN`` outside the skin
   of this frame (or its frame-0 clearance where that is less), with
@@ -84,7 +84,8 @@ from .loose import cloth_weights, smoothstep
 GRAVITY = (0.0, -9.81, 0.0)  # m/s^2, internal space (Y up)
 MAX_SUBSTEP = 1.0 / 240.0    # s: longest substep
 ITERATIONS = 3               # passes over the cloth's own constraints per substep (1: the pencil skirt stretched 1.3x)
-ATTACH_ALPHA = 0.02          # s^2: attachment compliance of fully free vertices (a ~1 s swing)
+ATTACH_ALPHA = 0.2           # s^2: attachment compliance of fully free vertices (a ~3 s swing; 0.02 pulled a
+                             # skirt's side out after a binding that followed the hand beside it)
 ATTACH_POWER = 2.0           # compliance ~ w^power: stiff near the attachment line
 STRETCH_ALPHA = 0.0          # s^2: edges against stretch (0: as stiff as the substeps allow)
 COMPRESS_ALPHA = 1e-4        # s^2: edges against compression (cloth buckles)
@@ -217,12 +218,9 @@ class ClothSolver:
     weights : (M,) cloth weights (default :func:`loose.cloth_weights`).
     collider : (N,) bool or indices, the body vertices the cloth collides
         with (default :func:`default_collider`).
-    rest_points : (M, 3) the cloth's rest state, whose edge lengths it
-        keeps: the items dressed statically on the body's bind pose (the
-        relaxed cut: legs together, as the motion measures judge stretch
-        against; :meth:`preroll` starts the cloth from it). Default
-        ``item_points0``, and :meth:`preroll` takes them from the binding on
-        the bind pose.
+    rest_points : (M, 3) the rest state of the hanging part of skirt items
+        (as :meth:`set_rest`), on the body's bind pose; default
+        ``item_points0`` for all.
     compiled : numba kernel (default: when installed) or its numpy twin.
     Other keywords override the module constants of the same name.
     """
@@ -271,7 +269,7 @@ class ClothSolver:
         order, self.colour_ptr = colour_edges(le, len(self.particles))
         self.edges = np.ascontiguousarray(le[order])
         x0 = pts0[self.particles]
-        xr = x0 if rest_points is None else np.asarray(rest_points, dtype=np.float64)[self.particles]
+        xr = x0
         self.rest = np.linalg.norm(xr[self.edges[:, 0]] - xr[self.edges[:, 1]], axis=1)
         self.inv_m = np.zeros(len(self.particles))
         self.inv_m[:self.n_free] = 1.0
@@ -279,7 +277,7 @@ class ClothSolver:
         self.tether_slack = tether_slack
         self.tethers = tethers(self.edges, self.rest, self.n_free, len(self.particles), tether_slack)
         if rest_points is not None:
-            self.rest_points = np.asarray(rest_points, dtype=np.float64)
+            self.set_rest(rest_points)
         # collision samples: the free particles and the midpoints of the
         # edges (a knee between the vertices of a coarse skirt meets one);
         # the particles are one colour, the edges keep theirs
@@ -327,18 +325,25 @@ class ClothSolver:
         self._scratch = make_scratch(len(self.edges), self.n_free, len(self.particles), len(self.samples))
 
     def set_rest(self, points: np.ndarray, keep: bool = True) -> None:
-        """Take the skirt items' edge rest lengths (and the tethers) from the
-        items (M, 3); ``keep``: they are the cloth's rest state
-        (:meth:`preroll` starts the skirts from them, turned onto the body).
-        Other loose parts (hair, a cape) keep the lengths of the dress they
-        were built on: the first frame does not crumple them."""
+        """Take the edge rest lengths (and the tethers) of the hanging part
+        of skirt items (cloth weight >= 1/2) from the items (M, 3) on the
+        body's bind pose; ``keep``: :meth:`preroll` starts that part from
+        them, turned onto the body. Other loose parts (hair, a cape) and the
+        part near the attachment keep the lengths of the dress they were
+        built on."""
         if keep:
             self.rest_points = np.asarray(points, dtype=np.float64)
         if self.n_free == 0:
             return
         xr = np.asarray(points, dtype=np.float64)[self.particles]
         rest = np.linalg.norm(xr[self.edges[:, 0]] - xr[self.edges[:, 1]], axis=1)
-        self.rest = np.where(self.skirt[self.particles[self.edges[:, 0]]], rest, self.rest)
+        # only where the skirt hangs (both ends cloth weight >= 1/2): near
+        # the attachment line the cloth keeps the dress it is attached to
+        # (the binding's), or the two fight (a skirt's side pulled out
+        # where the binding follows the hand beside it)
+        pe = self.particles[self.edges]
+        hang = self.skirt[pe[:, 0]] & (self.weights[pe] >= 0.5).all(axis=1)
+        self.rest = np.where(hang, rest, self.rest)
         self.tethers = tethers(self.edges, self.rest, self.n_free, len(self.particles), self.tether_slack)
 
     def _body_normals(self, body_points: np.ndarray) -> np.ndarray:
@@ -419,13 +424,11 @@ class ClothSolver:
         _, rot, shift = similarity_fit(np.asarray(body_from, dtype=np.float64), b_to, scale=False)
         b_from = np.asarray(body_from, dtype=np.float64) @ rot + shift
         relaxed = bound_at(b_from)
-        if self.rest_points is None:
-            self.set_rest(relaxed, keep=False)
-        elif self.rest_points is not None and self.n_free:
+        if self.rest_points is not None and self.n_free:
             # the cloth starts as its rest state (the static dress on the
             # bind pose), turned with the body
             relaxed = relaxed.copy()
-            rows = self.free[self.skirt[self.free]]
+            rows = self.free[self.skirt[self.free] & (self.weights[self.free] >= 0.5)]
             relaxed[rows] = self.rest_points[rows] @ rot + shift
         self.reset(b_from, relaxed)
         bound_to = bound_at(b_to)

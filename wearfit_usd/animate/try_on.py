@@ -199,11 +199,11 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
     if opt.mode == "bind" and opt.cloth is not False:
         # the edges keep their static-dress lengths; the cloth is dressed into
         # frame 0 by simulation from the target's bind pose
-        # the cloth's rest state: the relaxed cut, the items dressed statically
-        # on the bind pose (what the motion measures compare with; a skirt
-        # dressed with a leg forward is crumpled round it)
         cloth = ClothSolver(frame_plan, body.faces, body0, all_base)
         if cloth.active:
+            # the hanging part of skirts rests as dressed on the bind pose (the
+            # relaxed cut the measures judge against: a first frame with a leg
+            # forward dresses the skirt stretched round it)
             bind_dressed = _bind_dress(reference, target, dressed, opt, ref_plan)
             cloth.set_rest(np.concatenate([m.points for m in bind_dressed.items]))
             cloth_pts0 = cloth.preroll(body.points, body0, lambda b: evaluator(0, b), 1.0 / rt.fps)
