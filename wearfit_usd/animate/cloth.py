@@ -45,7 +45,7 @@ tell from there which side the cloth belongs on).
 Measured (CMU walk, ``ref_female_longskirt`` on ``body_female_heavy``, 2,075
 simulated vertices, 45 frames at 30 fps; see ``docs/motion_loose_parts.md``):
 the skirt's stretch against the static dress on the bind pose, beyond the
-body's own, p99 1.58x / max 2.9x in the worst frame (2.35x / 5.7x before the
+body's own, p99 1.61x / max 2.96x in the worst frame (2.35x / 5.7x before the
 relaxed-cut rest state, the tethers and 3 passes). Most of what remains is
 the hem at the longest stride: the legs' hull there is longer than the hem.
 
