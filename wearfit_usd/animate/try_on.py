@@ -204,8 +204,9 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
             # the hanging part of skirts rests as dressed on the bind pose (the
             # relaxed cut the measures judge against: a first frame with a leg
             # forward dresses the skirt stretched round it)
-            bind_dressed = _bind_dress(reference, target, dressed, opt, ref_plan)
-            cloth.set_rest(np.concatenate([m.points for m in bind_dressed.items]))
+            if cloth.skirt[cloth.free].any():
+                bind_dressed = _bind_dress(reference, target, dressed, opt, ref_plan)
+                cloth.set_rest(np.concatenate([m.points for m in bind_dressed.items]))
             cloth_pts0 = cloth.preroll(body.points, body0, lambda b: evaluator(0, b), 1.0 / rt.fps)
         else:
             cloth = None
