@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from tests.conftest import BVH_DIR, USD_DIR
-from wearfit_usd.animate.cloth import ClothSolver, colour_edges
+from wearfit_usd.animate.cloth import ClothSolver, colour_edges, tethers
 from wearfit_usd.geometry.closest import SurfaceQuery
 from wearfit_usd.geometry.mesh import edges as mesh_edges
 from wearfit_usd.kernels import HAVE_NUMBA
@@ -62,6 +62,53 @@ def test_colour_edges_are_independent_sets():
         v = e[order[ptr[c]:ptr[c + 1]]].ravel()
         assert len(np.unique(v)) == len(v)
     assert len(ptr) - 1 <= 12  # about the largest vertex degree (6 on this grid)
+
+
+def test_tethers_of_a_chain_and_a_fork():
+    # free particles 0-3 (3 joined to nothing), kinematic 4 and 5:
+    # 5 -0.5- 0 -0.1- 1 -0.2- 2 -0.3- 4
+    edges = np.array([[2, 4], [1, 2], [0, 1], [0, 5]], dtype=np.int64)
+    rest = np.array([0.3, 0.2, 0.1, 0.5])
+    t = tethers(edges, rest, 4, 6, 0.02)
+    assert t.anchor.tolist() == [5, 4, 4, -1]
+    np.testing.assert_allclose(t.length[:3], np.array([0.5, 0.5, 0.3]) * 1.02)
+    assert np.isinf(t.length[3])
+    assert (tethers(edges, rest, 4, 6, None).anchor == -1).all()
+
+
+def test_tethers_keep_a_soft_sheet_from_sagging():
+    # edges as soft as rubber: without tethers the hanging sheet sags far past
+    # its length; with them no vertex is farther from the pinned edge than
+    # its rest distance along the sheet (plus the slack)
+    pts, faces = grid_sheet(9, 0.8)
+    pts = pts[:, [1, 0, 2]] * np.array([1.0, -1.0, 1.0])
+    w = np.ones(len(pts))
+    w[:9] = 0.0
+    bp, bf = FAR_BODY
+    low = {}
+    for slack in (None, 0.02):
+        cs = ClothSolver(sheet_plan(faces), bf, bp, pts, weights=w, attach_alpha=1e9, stretch_alpha=1e-3,
+                         tether_slack=slack)
+        for _ in range(60):
+            out = cs.step(bp, pts, 1.0 / 30.0)
+        low[slack] = out[:, 1].min()
+    assert low[None] < -0.8 * 1.15
+    assert low[0.02] > -0.8 * 1.02 - 1e-6
+
+
+def test_set_rest_changes_only_the_hanging_part():
+    pts, faces = grid_sheet(9, 0.8)
+    w = np.clip(pts[:, 0] / 0.4, 0.0, 1.0)            # 0 at x = 0 rising to 1 from x = 0.4
+    bp, bf = FAR_BODY
+    cs = ClothSolver(sheet_plan(faces), bf, bp, pts, weights=w)
+    before = cs.rest.copy()
+    cs.set_rest(pts * 1.1)
+    pe = cs.particles[cs.edges]
+    hang = (w[pe] >= 0.5).all(axis=1)
+    assert hang.any() and (~hang).any()
+    np.testing.assert_allclose(cs.rest[hang], 1.1 * before[hang])
+    np.testing.assert_array_equal(cs.rest[~hang], before[~hang])
+    assert np.isfinite(cs.tethers.length[w[cs.free] >= 0.5]).all()
 
 
 def test_hanging_sheet_settles_to_its_length():
@@ -140,7 +187,8 @@ def test_inertia_swings_then_settles():
 
 
 @pytest.mark.skipif(not HAVE_NUMBA, reason="numba not installed")
-def test_numba_kernel_matches_numpy_twin():
+@pytest.mark.parametrize("iterations", [1, 3])
+def test_numba_kernel_matches_numpy_twin(iterations):
     pts, faces = grid_sheet(12, 1.0, y=0.43)
     pts[:, [0, 2]] -= 0.5
     w = np.linspace(0.0, 1.0, len(pts)) ** 0.5
@@ -148,13 +196,14 @@ def test_numba_kernel_matches_numpy_twin():
     sp, sf = uv_sphere(14, 0.4)
     runs = []
     for compiled in (True, False):
-        cs = ClothSolver(sheet_plan(faces), sf, sp, pts, weights=w, compiled=compiled, attach_alpha=0.05)
+        cs = ClothSolver(sheet_plan(faces), sf, sp, pts, weights=w, compiled=compiled, attach_alpha=0.05,
+                         iterations=iterations)
         outs = []
         for f in range(1, 8):
             body = sp + np.array([0.0, 0.01 * f, 0.02 * f])
             outs.append(cs.step(body, pts + np.array([0.0, 0.0, 0.01 * f]), 1.0 / 30.0))
         runs.append((np.array(outs), cs.hint.copy(), cs.v.copy()))
-    assert cs.n_free > 100 and (runs[0][1] >= 0).all()
+    assert cs.n_free > 100 and (runs[0][1] >= 0).all() and (cs.tethers.anchor >= 0).all()
     np.testing.assert_allclose(runs[0][0], runs[1][0], rtol=0, atol=1e-9)
     np.testing.assert_array_equal(runs[0][1], runs[1][1])
     np.testing.assert_allclose(runs[0][2], runs[1][2], rtol=0, atol=1e-6)

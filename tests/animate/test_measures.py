@@ -160,6 +160,53 @@ def test_sleeve_pulled_off_the_limb():
     assert row["separation_max_mm"] == pytest.approx(1000 * rim.max(), rel=0.01)
 
 
+def test_hanging_skirt_swung_away_still_covers_and_does_not_separate():
+    """A sleeve-like skirt round the limb, marked hanging: swung 20 cm
+    sideways (beyond the 8 cm reach) it still covers the limb on the side it
+    swung to and the limb shows only where it came out through it; it has
+    no contact vertices, so no separation. Unmarked, the same frame loses
+    every body vertex farther than 8 cm from it."""
+    lp, lf = LIMB
+    sp_, sf = SLEEVE
+    skirt = sp_.copy()
+    skirt[:, :2] *= 0.09 / 0.055                    # 4 cm ease all round: covers the limb statically
+    swung = skirt + [0.02, 0.0, 0.0]                # 2 cm sideways: the limb still inside
+    hang = np.ones(len(skirt), dtype=bool)
+    plain = MotionMeasures(lf, lp, [("skirt", skirt, sf)])
+    loose = MotionMeasures(lf, lp, [("skirt", skirt, sf)], hanging=hang)
+    assert np.array_equal(plain.covered[0], loose.covered[0]) and len(loose.covered[0]) > 100
+    assert plain.contact_mask.sum() == 0 or loose.contact_mask.sum() == 0
+    row = loose(lp, swung)[0]
+    assert row["coverage_loss_pct"] == 0.0 and row["separation_p95_mm"] is None
+    # swung 12 cm: the limb's side facing away from the swing comes out of it;
+    # the rest still meets the skirt along its normal, most beyond 8 cm
+    far = skirt + [0.12, 0.0, 0.0]
+    o = lp[loose.covered[0]]
+    d = o[:, :2] / np.linalg.norm(o[:, :2], axis=1, keepdims=True)
+    rel = o[:, :2] - [0.12, 0.0]
+    b, c = np.sum(rel * d, axis=1), np.sum(rel * rel, axis=1) - 0.09 ** 2
+    disc = b * b - c
+    t_far = -b + np.sqrt(np.maximum(disc, 0.0))               # the exit through the skirt's wall
+    meets = (disc > 0) & (t_far > 0.0) & (t_far < 0.5)
+    row = loose(lp, far)[0]
+    assert 20.0 < 100.0 * np.mean(~meets) < 80.0
+    assert row["coverage_loss_pct"] == pytest.approx(100.0 * np.mean(~meets), abs=3.0)
+    assert plain(lp, far)[0]["coverage_loss_pct"] > row["coverage_loss_pct"] + 10.0
+
+
+def test_hanging_vertices_are_not_contacts():
+    sp_, sf = SLEEVE
+    lp, lf = LIMB
+    hang = sp_[:, 2] < 0.3                          # the lower half hangs
+    mm = MotionMeasures(lf, lp, [("sleeve", sp_, sf)], hanging=hang)
+    moved = sp_.copy()
+    moved[hang, :2] *= 0.085 / 0.055                # the hanging half 3 cm out
+    row = mm(lp, moved)[0]
+    assert row["separation_max_mm"] == pytest.approx(0.0, abs=0.1)
+    row = sleeve_measures()(lp, moved)[0]
+    assert row["separation_max_mm"] == pytest.approx(30.0, abs=0.1)
+
+
 # -- a rigid part ---------------------------------------------------------------
 def test_rigid_part_bent_and_moved():
     plate, pf = grid(21, 6, -0.1, -0.025, H, z=0.01)
@@ -228,9 +275,11 @@ def test_walk_report_matches_a_direct_computation(usd_dir, bvh_dir, tmp_path):
     equal a direct computation on the written shot's last frame."""
     from pxr import Usd, UsdGeom
 
+    from wearfit_usd.animate.loose import cloth_weights
     from wearfit_usd.animate.try_on import AnimateOptions, animate, dress_items
     from wearfit_usd.cli import main
     from wearfit_usd.dress.metrics import item_rigid_groups
+    from wearfit_usd.dress.plan import plan as plan_dress
     from wearfit_usd.io.bvh import read_bvh
     from wearfit_usd.io.usd import read_character
     from wearfit_usd.motion.floor import place_on_floor
@@ -263,7 +312,8 @@ def test_walk_report_matches_a_direct_computation(usd_dir, bvh_dir, tmp_path):
     # direct: the static dress, the body skinned at the last frame, the items read back
     dressed = dress_items(ref, tgt)
     mm = MotionMeasures(tgt.body.faces, tgt.body.points, [(m.name, m.points, m.faces) for m in dressed.items],
-                        [item_rigid_groups(dressed.plan, sl) for sl in dressed.plan.item_slices()])
+                        [item_rigid_groups(dressed.plan, sl) for sl in dressed.plan.item_slices()],
+                        hanging=cloth_weights(plan_dress(ref)) >= 0.5)
     rt = retarget(read_bvh(clip), tgt.skeleton, start=1, end=81, fps=30.0)
     rt, _ = place_on_floor(rt, tgt.skeleton, tgt.body, "auto")  # as animate's default --floor auto
     f = 19

@@ -14,8 +14,12 @@ them. :class:`ClothSolver` simulates them instead, as cloth:
   ``ATTACH_ALPHA * w ** ATTACH_POWER``: stiff next to the attachment line,
   soft where the cloth hangs free (there it only keeps the garment's cut:
   a skirt keeps its flare, hair its shape, and settles back to it);
-* the edges keep their lengths in the static dress (stiff against stretch,
-  softer against compression);
+* the edges keep their lengths in the rest state (stiff against stretch,
+  softer against compression): the static dress of the first frame, or for
+  the hanging part of skirts the static dress on the bind pose given to
+  :meth:`ClothSolver.set_rest` (the relaxed cut: ``animate`` does); tethers
+  keep every free vertex within ``1 + TETHER_SLACK`` of its rest distance
+  along the cloth from the attachment;
 * the body is the collider: every free vertex, and the midpoint of every
   edge longer than ``EDGE_SAMPLE_LENGTH``, stays ``MARGIN`` outside the skin
   of this frame (or its frame-0 clearance where that is less), with
@@ -38,14 +42,12 @@ first frame by :meth:`ClothSolver.preroll` (the static dress of a walking
 pose can have a leg through a skirt bound to the hips: no collision could
 tell from there which side the cloth belongs on).
 
-Measured (CMU walk, ``ref_female_longskirt`` on ``body_female_heavy``, 2,076
-simulated vertices, native 120 fps, one core of a loaded machine): the leg
-skin inside the skirt that comes out through it drops from 65 % to 2.3 % in
-the worst frame, the skirt's edge stretch from p99 6.0x / max 21x to 2.0x /
-4.2x against the static dress (first 100 frames), at 2.9 ms per frame (4.2 ms
-for 5,075 vertices: the skirt and all of the bob's loose hair). Most of the remaining
-stretch is the skirt widening round the stride: it is as wide as it was cut,
-and the legs, which may not come through, are farther apart.
+Measured (CMU walk, ``ref_female_longskirt`` on ``body_female_heavy``, 2,075
+simulated vertices, 45 frames at 30 fps; see ``docs/motion_loose_parts.md``):
+the skirt's stretch against the static dress on the bind pose, beyond the
+body's own, p99 1.61x / max 2.96x in the worst frame (2.35x / 5.7x before the
+relaxed-cut rest state, the tethers and 3 passes). Most of what remains is
+the hem at the longest stride: the legs' hull there is longer than the hem.
 
 Usage: ``solver = ClothSolver(plan, body_faces, body_points0, item_points0)``
 on the dressed frame 0, then ``points = solver.step(body_f, bound_f, dt)``
@@ -58,19 +60,32 @@ import math
 import time
 
 import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
 from ..dress import regions as R
 from ..geometry.closest import VertexNormals
 from ..geometry.mesh import adjacency, similarity_fit
 from ..kernels import HAVE_NUMBA, RadiusGrid
-from ..kernels.cloth import cloth_frame
+from ..kernels.cloth import (
+    ClothBody,
+    ClothEdges,
+    ClothParams,
+    ClothSamples,
+    ClothState,
+    ClothTargets,
+    ClothTethers,
+    cloth_frame,
+    make_scratch,
+)
 from .loose import cloth_weights, smoothstep
 
 GRAVITY = (0.0, -9.81, 0.0)  # m/s^2, internal space (Y up)
 MAX_SUBSTEP = 1.0 / 240.0    # s: longest substep
-ITERATIONS = 1               # constraint passes per substep
-ATTACH_ALPHA = 0.02          # s^2: attachment compliance of fully free vertices (a ~1 s swing)
+ITERATIONS = 3               # passes over the cloth's own constraints per substep (1: the pencil skirt stretched 1.3x)
+ATTACH_ALPHA = 0.2           # s^2: attachment compliance of fully free vertices (a ~3 s swing; 0.02 pulled a
+                             # skirt's side out after a binding that followed the hand beside it)
 ATTACH_POWER = 2.0           # compliance ~ w^power: stiff near the attachment line
 STRETCH_ALPHA = 0.0          # s^2: edges against stretch (0: as stiff as the substeps allow)
 COMPRESS_ALPHA = 1e-4        # s^2: edges against compression (cloth buckles)
@@ -83,8 +98,9 @@ EDGE_SAMPLE_LENGTH = 0.03    # m: edges longer than this get a collision sample 
 SEEK_INTERVAL = 1.0 / 30.0   # s between grid searches of the nearest body vertex of the samples near the body
 RESEED_EVERY = 8             # searches between searches of every sample (the kernel walks from them between)
 SEED_REACH = 0.5             # m: the first search of each sample's nearest body vertex
-GRID_CELL = 0.02             # m: cell of the nearest-body-vertex grid
+GRID_CELL = 0.05             # m: cell of the nearest-body-vertex grid (0.02: the search took 3x as long)
 REACH = 0.02                 # m: body farther than this (plus its motion this frame and gap) is not tested
+TETHER_SLACK = 0.02          # a free vertex stays within (1 + this) x its rest distance along the cloth from its anchor
 
 
 def colour_edges(edges: np.ndarray, n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -147,6 +163,34 @@ def body_graph(faces: np.ndarray, n: int, keep: np.ndarray | None = None
     return indptr, indices, table
 
 
+def tethers(edges: np.ndarray, rest: np.ndarray, n_free: int, n: int, slack: float | None) -> ClothTethers:
+    """Each free particle's anchor, the kinematic particle (index >= n_free)
+    nearest to it along the cloth's edges (Dijkstra over the rest lengths),
+    and the tether's length, that distance times ``1 + slack``.
+
+    Parameters
+    ----------
+    edges : (E, 2) particle pairs; rest (E,) their lengths; n particles, the
+        first n_free simulated. slack: None for no tethers.
+
+    Returns
+    -------
+    :class:`kernels.cloth.ClothTethers`: anchor (n_free,) (-1 where no
+    kinematic particle is reachable, or no tethers), length (n_free,).
+    """
+    anchor = np.full(n_free, -1, dtype=np.int64)
+    length = np.full(n_free, np.inf)
+    if slack is None or n <= n_free or len(edges) == 0:
+        return ClothTethers(anchor, length)
+    g = sp.csr_matrix((np.maximum(rest, 1e-9), (edges[:, 0], edges[:, 1])), shape=(n, n))
+    dist, _, src = dijkstra(g, directed=False, indices=np.arange(n_free, n), min_only=True,
+                            return_predecessors=True)
+    ok = np.isfinite(dist[:n_free]) & (src[:n_free] >= 0)
+    anchor[ok] = src[:n_free][ok]
+    length[ok] = dist[:n_free][ok] * (1.0 + float(slack))
+    return ClothTethers(anchor, np.ascontiguousarray(length))
+
+
 def default_collider(plan, n: int) -> np.ndarray:
     """(n,) bool: the body vertices loose parts collide with: all but the
     arms when the plan knows the body's regions. A hand hanging beside a
@@ -174,8 +218,9 @@ class ClothSolver:
     weights : (M,) cloth weights (default :func:`loose.cloth_weights`).
     collider : (N,) bool or indices, the body vertices the cloth collides
         with (default :func:`default_collider`).
-    rest_points : (M, 3) the static dress the edge lengths are kept from
-        (default ``item_points0``).
+    rest_points : (M, 3) the rest state of the hanging part of skirt items
+        (as :meth:`set_rest`), on the body's bind pose; default
+        ``item_points0`` for all.
     compiled : numba kernel (default: when installed) or its numpy twin.
     Other keywords override the module constants of the same name.
     """
@@ -186,7 +231,8 @@ class ClothSolver:
                  attach_alpha: float = ATTACH_ALPHA, attach_power: float = ATTACH_POWER,
                  stretch_alpha: float = STRETCH_ALPHA, compress_alpha: float = COMPRESS_ALPHA,
                  damping: float = DAMPING, friction: float = FRICTION, margin: float = MARGIN,
-                 reach: float = REACH, edge_samples: bool = True, collider: np.ndarray | None = None):
+                 reach: float = REACH, edge_samples: bool = True, collider: np.ndarray | None = None,
+                 tether_slack: float | None = TETHER_SLACK):
         pts0 = np.ascontiguousarray(item_points0, dtype=np.float64)
         body0 = np.ascontiguousarray(body_points0, dtype=np.float64)
         self.faces = np.ascontiguousarray(body_faces, dtype=np.int64)
@@ -200,6 +246,15 @@ class ClothSolver:
         self.stretch_alpha, self.compress_alpha = float(stretch_alpha), float(compress_alpha)
         self.damping, self.friction, self.reach = float(damping), float(friction), float(reach)
         self.timings = {"frames": 0, "solve_s": 0.0, "solve_cpu_s": 0.0}
+        self.rest_points = None
+        # skirt items (the plan binds them to the hips): the ones a first
+        # frame with a leg forward crumples; :meth:`set_rest` applies to them
+        self.skirt = np.ones(len(w), dtype=bool)
+        regions = getattr(plan, "regions", None)
+        if regions is not None and hasattr(plan, "item_slices"):
+            self.skirt[:] = False
+            for item, sl in zip(plan.items, plan.item_slices()):
+                self.skirt[sl] = item.name in regions.skirt_items
         if self.n_free == 0:
             return
         e = np.asarray(plan.mesh.edges, dtype=np.int64)
@@ -214,11 +269,15 @@ class ClothSolver:
         order, self.colour_ptr = colour_edges(le, len(self.particles))
         self.edges = np.ascontiguousarray(le[order])
         x0 = pts0[self.particles]
-        xr = x0 if rest_points is None else np.asarray(rest_points, dtype=np.float64)[self.particles]
+        xr = x0
         self.rest = np.linalg.norm(xr[self.edges[:, 0]] - xr[self.edges[:, 1]], axis=1)
         self.inv_m = np.zeros(len(self.particles))
         self.inv_m[:self.n_free] = 1.0
         self.att_alpha = float(attach_alpha) * w[self.free] ** float(attach_power)
+        self.tether_slack = tether_slack
+        self.tethers = tethers(self.edges, self.rest, self.n_free, len(self.particles), tether_slack)
+        if rest_points is not None:
+            self.set_rest(rest_points)
         # collision samples: the free particles and the midpoints of the
         # edges (a knee between the vertices of a coarse skirt meets one);
         # the particles are one colour, the edges keep theirs
@@ -263,8 +322,29 @@ class ClothSolver:
         self.clear = np.full(len(self.samples), -np.inf)
         self._seek(SEED_REACH)
         self._frame, self._since = 1, 0.0
-        self._scratch = (np.empty(len(self.edges)), np.empty((self.n_free, 3)), np.empty_like(self.x),
-                         np.empty((len(self.samples), 3)))
+        self._scratch = make_scratch(len(self.edges), self.n_free, len(self.particles), len(self.samples))
+
+    def set_rest(self, points: np.ndarray, keep: bool = True) -> None:
+        """Take the edge rest lengths (and the tethers) of the hanging part
+        of skirt items (cloth weight >= 1/2) from the items (M, 3) on the
+        body's bind pose; ``keep``: :meth:`preroll` starts that part from
+        them, turned onto the body. Other loose parts (hair, a cape) and the
+        part near the attachment keep the lengths of the dress they were
+        built on."""
+        if keep:
+            self.rest_points = np.asarray(points, dtype=np.float64)
+        if self.n_free == 0:
+            return
+        xr = np.asarray(points, dtype=np.float64)[self.particles]
+        rest = np.linalg.norm(xr[self.edges[:, 0]] - xr[self.edges[:, 1]], axis=1)
+        # only where the skirt hangs (both ends cloth weight >= 1/2): near
+        # the attachment line the cloth keeps the dress it is attached to
+        # (the binding's), or the two fight (a skirt's side pulled out
+        # where the binding follows the hand beside it)
+        pe = self.particles[self.edges]
+        hang = self.skirt[pe[:, 0]] & (self.weights[pe] >= 0.5).all(axis=1)
+        self.rest = np.where(hang, rest, self.rest)
+        self.tethers = tethers(self.edges, self.rest, self.n_free, len(self.particles), self.tether_slack)
 
     def _body_normals(self, body_points: np.ndarray) -> np.ndarray:
         """(C, 3) unit normals of the collider's vertices on the whole body (N, 3)."""
@@ -343,7 +423,14 @@ class ClothSolver:
         # vertex positions across a half turn would pass the body through itself
         _, rot, shift = similarity_fit(np.asarray(body_from, dtype=np.float64), b_to, scale=False)
         b_from = np.asarray(body_from, dtype=np.float64) @ rot + shift
-        self.reset(b_from, bound_at(b_from))
+        relaxed = bound_at(b_from)
+        if self.rest_points is not None and self.n_free:
+            # the cloth starts as its rest state (the static dress on the
+            # bind pose), turned with the body
+            relaxed = relaxed.copy()
+            rows = self.free[self.skirt[self.free] & (self.weights[self.free] >= 0.5)]
+            relaxed[rows] = self.rest_points[rows] @ rot + shift
+        self.reset(b_from, relaxed)
         bound_to = bound_at(b_to)
         if self.n_free == 0:
             return bound_to
@@ -399,10 +486,12 @@ class ClothSolver:
             else:
                 self._seek(radius, np.flatnonzero(self.clear < radius))
             self._frame += 1
-        cloth_frame(self.x, self.v, self.t0, t1, self.inv_m, self.n_free, self.att_alpha, self.edges, self.rest,
-                    self.colour_ptr, self.stretch_alpha, self.compress_alpha, self.samples, self.sample_ptr,
-                    self.hint, self.margin, self.clear, move, self.gap, self.b0, b1, self.n0, n1, self.adjacency,
-                    self.gravity, self.damping, self.friction, float(dt), self.substeps(dt), self.iterations,
+        cloth_frame(ClothState(self.x, self.v, self.inv_m, self.att_alpha), ClothTargets(self.t0, t1),
+                    ClothEdges(self.edges, self.rest, self.colour_ptr), self.tethers,
+                    ClothSamples(self.samples, self.sample_ptr, self.hint, self.margin, self.clear),
+                    ClothBody(self.b0, b1, self.n0, n1, *self.adjacency, move, self.gap),
+                    ClothParams(self.gravity, self.damping, self.friction, self.stretch_alpha, self.compress_alpha,
+                                float(dt), self.substeps(dt), self.iterations),
                     compiled=self.compiled, scratch=self._scratch)
         self.b0, self.n0, self.t0 = b1, n1, t1
         self.grid.update(b1)

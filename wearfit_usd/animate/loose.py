@@ -44,6 +44,7 @@ from ..dress.corrections import LOOSE_START
 
 SKIRT_RAMP = 0.12   # m along the skirt from its attachment line to fully free
 HIP_HEIGHT = 0.10   # m above the crotch (lowest torso vertex) a skirt's attachment line starts
+HIP_BAND = 0.08     # m: the band above that holding the attachment line (above it skirts stay bound)
 HANG_START = 0.08   # m from the attachment line before other items start to hang free
 HANG_RAMP = 0.10    # m over which they become fully free
 MIN_FREE = 16       # an item with fewer vertices of weight > 0 is not simulated at all
@@ -87,14 +88,33 @@ def cloth_weights(plan) -> np.ndarray:
             skirt[sl] = True
     tight = clear < LOOSE_START
     hips = near_region == R.TORSO
+    below = np.ones(m, dtype=bool)   # skirt vertices that may hang (below the hip band)
     if plan.ref_body is not None and plan.regions.body is not None and np.any(plan.regions.body == R.TORSO):
         # not the groin: the thighs swing up into the skirt there
         crotch_y = float(np.min(np.asarray(plan.ref_body)[plan.regions.body == R.TORSO, 1]))
         hips &= pts[:, 1] > crotch_y + HIP_HEIGHT
+        # a dress, a suit or a coat goes on above the hips: its top and its
+        # sleeves (hanging beside the skirt, but joined to it only above the
+        # band) stay bound; the band sits on the hips
+        top = crotch_y + HIP_HEIGHT + HIP_BAND
+        hips &= pts[:, 1] < top
+        below = pts[:, 1] < top
+    # the attachment line: the skirt's closest contact with the hips (an
+    # item cut with some ease everywhere touches nowhere within LOOSE_START)
+    for sl in plan.item_slices():
+        band = skirt[sl] & hips[sl]
+        if band.any():
+            tight[sl] |= band & (clear[sl] < float(clear[sl][band].min()) + LOOSE_START)
     anchors = np.where(skirt, tight & hips, plan.looseness <= 0)
-    d = attachment_distance(pts, plan.mesh.edges, anchors)
+    e = np.asarray(plan.mesh.edges, dtype=np.int64)
+    # skirts: distances within the part below the band (a sleeve hanging
+    # beside the skirt is reached only through the shoulder: not at all)
+    keep = ~skirt | below
+    e = e[keep[e[:, 0]] & keep[e[:, 1]]]
+    d = attachment_distance(pts, e, anchors & keep)
     d = np.where(np.isfinite(d), d, 0.0)  # unattached pieces: bound as they are
     w = np.where(skirt, smoothstep(d / SKIRT_RAMP), smoothstep((d - HANG_START) / HANG_RAMP))
+    w[skirt & ~below] = 0.0
     w *= plan.looseness
     w[plan.rigid_mask()] = 0.0
     for sl in plan.item_slices():

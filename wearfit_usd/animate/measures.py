@@ -19,13 +19,20 @@ frame. Per item and per frame:
   of each vertex's signed distance to the body against the static dress,
   over the item's *contact* vertices (within ``contact`` of the body, or
   inside it, in the static dress): a collar leaving the ankle. A skirt's hem
-  hanging away from the legs is not a contact and may swing. None for items
+  hanging away from the legs is not a contact and may swing: nor are the
+  *hanging* vertices (``hanging``: the loose parts the cloth simulates,
+  :func:`animate.loose.cloth_weights` >= 1/2), which lie on the thighs in
+  the static dress and swing off them with every step. None for items
   with fewer than 3 contact vertices (they do not touch the body).
 - **coverage loss** (``coverage_loss_pct``): of the body vertices the item
   covers in the static dress (a ray from the vertex along its normal meets
   the item between ``-inset`` and ``reach`` metres), the percentage it no
   longer covers in this frame (tears, the body poking through, the item
-  sliding off). None for items that cover no body vertex.
+  sliding off). None for items that cover no body vertex. Where the static
+  hit is on a hanging part, the ray in the frame reaches ``hanging_reach``
+  (50 cm): a skirt swinging 10 cm off the back leg still covers it (the
+  skin is not seen from outside along its normal), a leg through the skirt
+  or a tear does not.
 - **rigid parts** (``rigid_mm``): the largest distance of a vertex of a rigid
   group (each articulated piece: the plan's rigid groups are split per body
   region, e.g. a shoe per foot) from the best similarity transform
@@ -171,11 +178,16 @@ class MotionMeasures:
     margin : metres, the inside test of the new penetrations.
     k : body triangles per item vertex for its local body stretch (the
         closest one and the ones with the nearest centroids).
+    hanging : (M,) bool over the stacked items, the vertices of loose parts
+        that hang free (see the module docstring), or None (none).
+    hanging_reach : metres, the coverage ray's reach in a frame where the
+        static hit is on a hanging part.
     """
 
     def __init__(self, body_faces: np.ndarray, body_points: np.ndarray, items: list,
                  rigid_groups: list | None = None, reach: float = 0.08, inset: float = 0.005,
-                 contact: float = 0.01, margin: float = 0.001, k: int = 5):
+                 contact: float = 0.01, margin: float = 0.001, k: int = 5, hanging: np.ndarray | None = None,
+                 hanging_reach: float = 0.5):
         self.faces = np.ascontiguousarray(body_faces, dtype=np.int64)
         self.body0 = np.ascontiguousarray(body_points, dtype=np.float64)
         self.names = [n for n, _, _ in items]
@@ -201,7 +213,10 @@ class MotionMeasures:
         self.edge_item = np.repeat(np.arange(len(items)), [len(x) for x in e])
         self.edges = np.concatenate(e) if e else np.zeros((0, 2), dtype=np.int64)
         self.len0 = np.linalg.norm(self.items0[self.edges[:, 1]] - self.items0[self.edges[:, 0]], axis=1)
-        self.contact_mask = self.clearance0 < self.contact
+        self.hanging = (np.zeros(len(self.items0), dtype=bool) if hanging is None
+                        else np.asarray(hanging, dtype=bool).reshape(len(self.items0)))
+        self.hanging_reach = float(hanging_reach)
+        self.contact_mask = (self.clearance0 < self.contact) & ~self.hanging
         self.outside0 = self.clearance0 > -self.margin
         # coverage: the body vertices each item covers statically, and the hit triangle
         n0 = self.normals(self.body0)
@@ -220,6 +235,10 @@ class MotionMeasures:
             v = np.flatnonzero(hit >= 0)
             self.covered.append(v)
             self.cover_tri.append(hit[v])
+        # per item: the frame's reach of each covered body vertex's ray
+        self.cover_reach = [np.where(self.hanging[self._slice(i)][self.item_faces[i][t]].any(axis=1),
+                                     max(self.hanging_reach, self.reach), self.reach)
+                            for i, t in enumerate(self.cover_tri)]
 
     def _slice(self, i: int) -> slice:
         return slice(int(self.offsets[i]), int(self.offsets[i + 1]))
@@ -234,10 +253,12 @@ class MotionMeasures:
             return None
         f = self.item_faces[i]
         o, d = body_points[v], body_normals[v]
+        reach = self.cover_reach[i]
         tri = item_points[f[self.cover_tri[i]]]
         # the static hit triangle first (it follows the item), then the
         # triangles around it, a full search for the rest
-        hit, _ = ray_triangle(o, d, tri[:, 0], tri[:, 1], tri[:, 2], -self.inset, self.reach)
+        hit, t = ray_triangle(o, d, tri[:, 0], tri[:, 1], tri[:, 2], -self.inset, float(reach.max()))
+        hit &= t <= reach
         miss = np.flatnonzero(~hit)
         if len(miss):
             ring = self.rings[i]
@@ -247,12 +268,14 @@ class MotionMeasures:
             first = np.repeat(np.cumsum(lens) - lens, lens)
             cand = ring.indices[np.repeat(start, lens) + np.arange(int(lens.sum())) - first]
             tc = item_points[f[cand]]
-            h, _ = ray_triangle(o[ray], d[ray], tc[:, 0], tc[:, 1], tc[:, 2], -self.inset, self.reach)
+            h, t = ray_triangle(o[ray], d[ray], tc[:, 0], tc[:, 1], tc[:, 2], -self.inset, float(reach.max()))
+            h &= t <= reach[ray]
             hit[ray[h]] = True
             miss = np.flatnonzero(~hit)
-        if len(miss):
-            again = cast_rays(o[miss], d[miss], item_points, f, -self.inset, self.reach)
-            hit[miss] = again >= 0
+        for r in np.unique(reach[miss]):
+            m = miss[reach[miss] == r]
+            again = cast_rays(o[m], d[m], item_points, f, -self.inset, float(r))
+            hit[m] = again >= 0
         return 100.0 * float(np.sum(~hit)) / len(v)
 
     def __call__(self, body_points: np.ndarray, item_points: np.ndarray) -> list[dict]:

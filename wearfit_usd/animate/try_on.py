@@ -43,6 +43,7 @@ from ..motion.skinning import Skinner, skin_points, skinning_matrices
 from ..progress import info, progress
 from .cloth import ClothSolver
 from .frame_eval import FrameEvaluator
+from .loose import cloth_weights
 from .measures import MEASURES, MotionMeasures, worst_frames
 from .penetration_guard import PenetrationGuard
 from .skin_transfer import transfer_weights
@@ -201,12 +202,18 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
         frame_eval = FrameEvaluator(frame_plan)
         evaluator = lambda f, body_f: frame_eval(body_f)  # noqa: E731
         items_for_skin = []
-    cloth = None
+    cloth = bind_dressed = None
     if opt.mode == "bind" and opt.cloth is not False:
         # the edges keep their static-dress lengths; the cloth is dressed into
         # frame 0 by simulation from the target's bind pose
         cloth = ClothSolver(frame_plan, body.faces, body0, all_base)
         if cloth.active:
+            # the hanging part of skirts rests as dressed on the bind pose (the
+            # relaxed cut the measures judge against: a first frame with a leg
+            # forward dresses the skirt stretched round it)
+            if cloth.skirt[cloth.free].any():
+                bind_dressed = _bind_dress(reference, target, dressed, opt, ref_plan)
+                cloth.set_rest(np.concatenate([m.points for m in bind_dressed.items]))
             cloth_pts0 = cloth.preroll(body.points, body0, lambda b: evaluator(0, b), 1.0 / rt.fps)
         else:
             cloth = None
@@ -224,7 +231,9 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
     measures = None
     if opt.measure_every and opt.motion_measures:
         t0 = time.perf_counter()
-        measures = _motion_measures(reference, target, dressed, opt, ref_plan)
+        if bind_dressed is None:
+            bind_dressed = _bind_dress(reference, target, dressed, opt, ref_plan)
+        measures = _motion_measures(target, bind_dressed, ref_plan)
         rep.timings["measure_setup"] = time.perf_counter() - t0
 
     clip_frames = opt.clip_frames
@@ -285,19 +294,28 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
     return rep
 
 
-def _motion_measures(reference: Character, target: Character, dressed, opt: AnimateOptions,
-                     ref_plan) -> MotionMeasures:
-    """The motion measures' reference: the items dressed statically on the
-    target's bind pose, as `wearfit dress` dresses them (untangle pass on;
-    ``dressed`` already is that in lbs mode or with ``dress_pose="bind"``
-    and ``untangle``, otherwise one more dressing), with the rigid groups of
-    its plan. The same reference in both modes: bind and lbs compare."""
-    if not ((opt.mode == "lbs" or opt.dress_pose == "bind") and opt.untangle):
-        dressed = dress_items(reference, target, k=opt.k, prepared=ref_plan, pose_align=opt.pose_align)
+def _bind_dress(reference: Character, target: Character, dressed, opt: AnimateOptions, ref_plan):
+    """The items dressed statically on the target's bind pose, as `wearfit
+    dress` dresses them (untangle pass on; ``dressed`` already is that in
+    lbs mode or with ``dress_pose="bind"`` and ``untangle``, otherwise one
+    more dressing)."""
+    if (opt.mode == "lbs" or opt.dress_pose == "bind") and opt.untangle:
+        return dressed
+    return dress_items(reference, target, k=opt.k, prepared=ref_plan, pose_align=opt.pose_align)
+
+
+def _motion_measures(target: Character, dressed, ref_plan) -> MotionMeasures:
+    """The motion measures' reference: ``dressed``, the items dressed
+    statically on the target's bind pose (:func:`_bind_dress`), with the
+    rigid groups of its plan. The same reference in both modes: bind and
+    lbs compare. The loose parts' hanging vertices (cloth weight >= 1/2 on
+    the reference's plan, in every mode) are not contacts and may swing
+    away from the body they cover."""
     pl = dressed.plan
     return MotionMeasures(target.body.faces, target.body.points,
                           [(m.name, m.points, m.faces) for m in dressed.items],
-                          [item_rigid_groups(pl, sl) for sl in pl.item_slices()])
+                          [item_rigid_groups(pl, sl) for sl in pl.item_slices()],
+                          hanging=cloth_weights(ref_plan) >= 0.5)
 
 
 def _record(rep: AnimateReport, frame: int, rows: list) -> None:

@@ -21,7 +21,8 @@ vertex normals, renormalised, and the targets). Each substep:
    ``u = (t1 - t0) / dt`` decays as ``v <- u + (v - u) exp(-damping h)``
    (damping that does not slow a garment walking with its body), gravity
    ``v <- v + g h``, and ``p = x + h v``;
-2. ``n_iter`` passes over the constraints, each as XPBD: for a constraint
+2. ``n_iter`` passes over the cloth's own constraints (attachment,
+   tethers, edges), then one over the body collisions; each as XPBD: for a constraint
    ``C(p)`` with compliance ``alpha`` (inverse stiffness) and accumulated
    multiplier ``lambda`` (zeroed at the start of the substep),
 
@@ -40,13 +41,23 @@ vertex normals, renormalised, and the targets). Each substep:
      shortens), in the order of ``edges`` (coloured so that no two edges of
      one colour share a vertex: the numpy twin updates a colour at once and
      gets the same numbers);
+   * tether (long-range attachment, Kim, Chentanez, Mueller 2012): a free
+     particle with an anchor ``a`` (the kinematic particle nearest along
+     the cloth) stays within ``length`` of it, ``C = |p - p_a| - length <= 0``
+     projected hard (the anchor does not move): the cloth as a whole cannot
+     stretch away from where it hangs, whatever the chain of edges between
+     (edges alone, one pass a substep, let a long skirt sag and its hem
+     be pulled out); projected before the edges, which then smooth what
+     the tethers moved (a tether pulling straight through a shoulder the
+     hair lies on would otherwise hold edges stretched against the
+     collision);
    * body collision (after the others, so it has the last word), per
      collision sample: a free particle, or the midpoint ``q = (p_a + p_b) / 2``
      of an edge (a knee between the vertices of a coarse skirt meets one).
      The body is the skin at ``b(s)``; the sample's nearest body vertex
      ``j`` is followed by a greedy walk over the body's vertex graph from
-     the last one (``hint``, re-seeded from a grid search by the caller), on
-     the first pass of the frame's first substep; ``n_j`` is its unit normal,
+     the last one (``hint``, re-seeded from a grid search by the caller), in
+     the frame's first substep; ``n_j`` is its unit normal,
      ``d = (q - b_j) . n_j`` the signed distance estimate, and
      ``C = d - margin >= 0`` is projected hard (``alpha = 0``): with
      ``grad_a C = g_a n`` (``g = 1`` for a particle, ``1/2`` for each end of
@@ -66,12 +77,16 @@ vertex normals, renormalised, and the targets). Each substep:
      vertex's motion in this substep, is removed up to ``friction * depth``;
 3. ``v = (p - x) / h``, ``x = p``.
 
-All arrays float64 (indices int64) and C-contiguous; lengths in metres,
-times in seconds.
+The kernel takes its arrays grouped as named tuples: :class:`ClothState`
+(what the cloth carries from frame to frame), :class:`ClothTargets`,
+:class:`ClothEdges`, :class:`ClothTethers`, :class:`ClothSamples`,
+:class:`ClothBody` and :class:`ClothParams`. All arrays float64 (indices
+int64) and C-contiguous; lengths in metres, times in seconds.
 """
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -80,6 +95,82 @@ from .jit import HAVE_NUMBA, jit
 MAX_WALK = 24     # greedy steps per nearest-vertex walk (usually 0-2 are taken)
 MAX_SLIDE = 0.03  # m: a sample farther than this (plus gap) from its body vertex along the skin is not pushed
 MAX_PUSH = 0.03   # m: deepest push of a sample in one pass (deeper ones come out over the next substeps)
+
+
+class ClothState(NamedTuple):
+    """What the cloth carries from frame to frame (P particles, the first
+    F = ``len(v)`` simulated, the rest kinematic)."""
+    x: np.ndarray          # (P, 3) positions (updated)
+    v: np.ndarray          # (F, 3) velocities (updated)
+    inv_m: np.ndarray      # (P,) inverse masses (0: kinematic)
+    att_alpha: np.ndarray  # (F,) attachment compliance (s^2)
+
+
+class ClothTargets(NamedTuple):
+    """The bound positions of the particles at the previous frame and at this one."""
+    t0: np.ndarray  # (P, 3)
+    t1: np.ndarray  # (P, 3)
+
+
+class ClothEdges(NamedTuple):
+    """The distance constraints, sorted by colour (no two edges of a colour share a particle)."""
+    pairs: np.ndarray       # (E, 2) int64 particle pairs
+    rest: np.ndarray        # (E,) rest lengths
+    colour_ptr: np.ndarray  # (C + 1,) int64 start of each colour
+
+
+class ClothTethers(NamedTuple):
+    """Per free particle, the kinematic particle it hangs from and how far it may be."""
+    anchor: np.ndarray  # (F,) int64 particle index (-1: none)
+    length: np.ndarray  # (F,) largest distance from it
+
+
+class ClothSamples(NamedTuple):
+    """The collision samples (midpoints of two particles, a particle when both are one)."""
+    pairs: np.ndarray       # (S, 2) int64, sorted by colour (no two of a colour share a particle)
+    colour_ptr: np.ndarray  # (K + 1,) int64
+    hint: np.ndarray        # (S,) int64 nearest body vertex (-1: none within reach; updated)
+    margin: np.ndarray      # (S,) clearance kept from the body
+    clear: np.ndarray       # (S,) lower bound of the distance to the body vertices (updated)
+
+
+class ClothBody(NamedTuple):
+    """The collider over the frame: its vertices, unit normals and vertex graph."""
+    b0: np.ndarray         # (N, 3) points at the previous frame
+    b1: np.ndarray         # (N, 3) points at this frame
+    n0: np.ndarray         # (N, 3) unit vertex normals at the previous frame
+    n1: np.ndarray         # (N, 3) and at this one
+    adj_ptr: np.ndarray    # (N + 1,) int64 CSR of the vertex graph
+    adj_idx: np.ndarray    # (nnz,) int64
+    adj_table: np.ndarray  # (N, D) int64 the same, -1 padded (numpy twin)
+    move: float            # largest vertex displacement over the frame
+    gap: float             # how much nearer than its nearest vertex the skin can be
+
+
+class ClothParams(NamedTuple):
+    """The frame length and the material."""
+    gravity: np.ndarray     # (3,) m/s^2
+    damping: float          # 1/s, of the velocity relative to the targets'
+    friction: float         # Coulomb coefficient against the skin
+    alpha_stretch: float    # s^2 edge compliance when stretched
+    alpha_compress: float   # s^2 when compressed
+    dt: float               # frame length (s)
+    n_sub: int              # substeps
+    n_iter: int             # constraint passes per substep
+
+
+class ClothScratch(NamedTuple):
+    """Work buffers of the compiled loop."""
+    lam_e: np.ndarray  # (E,)
+    lam_a: np.ndarray  # (F, 3)
+    p: np.ndarray      # (P, 3)
+    q0: np.ndarray     # (S, 3)
+
+
+def make_scratch(n_edges: int, n_free: int, n_particles: int, n_samples: int) -> ClothScratch:
+    """Buffers for :func:`cloth_frame` of these sizes."""
+    return ClothScratch(np.empty(n_edges), np.empty((n_free, 3)), np.empty((n_particles, 3)),
+                        np.empty((n_samples, 3)))
 
 
 # ----------------------------------------------------------------------------
@@ -218,10 +309,34 @@ def _collide(k, p, x, hint, samples, margin, clear, q0, move, gap, friction, inv
         p[ib, 2] += fb * cz
 
 
-def _frame_loop(x, v, hint, t0, t1, inv_m, n_free, att_alpha, edges, rest, alpha_stretch, alpha_compress,
-                samples, margin, clear, move, gap, b0, b1, n0, n1, adj_ptr, adj_idx, gravity, damping, friction,
-                dt, n_sub, n_iter, lam_e, lam_a, p, q0):
-    """One frame (see the module docstring); x, v, hint, clear, lam_e, lam_a, p, q0 updated in place."""
+def _tether(p, i, anchor, length):
+    """Tether of free particle i: within length[i] of its (kinematic) anchor."""
+    a = anchor[i]
+    if a < 0:
+        return
+    dx = p[i, 0] - p[a, 0]
+    dy = p[i, 1] - p[a, 1]
+    dz = p[i, 2] - p[a, 2]
+    ln = math.sqrt(dx * dx + dy * dy + dz * dz)
+    if ln <= length[i]:
+        return
+    f = (ln - length[i]) / ln
+    p[i, 0] -= f * dx
+    p[i, 1] -= f * dy
+    p[i, 2] -= f * dz
+
+
+def _frame_loop(state, tg, ed, te, sm, body, prm, scratch):
+    """One frame (see the module docstring); the state, the samples' hint
+    and clear, and the scratch buffers updated in place."""
+    x, v, inv_m, att_alpha = state
+    t0, t1 = tg
+    edges, rest, _ = ed
+    samples, _, hint, margin, clear = sm
+    b0, b1, n0, n1, adj_ptr, adj_idx, _, move, gap = body
+    gravity, damping, friction, alpha_stretch, alpha_compress, dt, n_sub, n_iter = prm
+    lam_e, lam_a, p, q0 = scratch
+    n_free = v.shape[0]
     n_all = x.shape[0]
     for k in range(samples.shape[0]):
         for c in range(3):
@@ -231,19 +346,24 @@ def _frame_loop(x, v, hint, t0, t1, inv_m, n_free, att_alpha, edges, rest, alpha
     for k_sub in range(n_sub):
         s_prev = k_sub / n_sub
         s = (k_sub + 1) / n_sub
+        # predict, and the first pass's attachment (its multiplier starts at 0)
         for i in range(n_free):
+            a = att_alpha[i] / (hs * hs)
+            wi = inv_m[i]
             for c in range(3):
                 u = (t1[i, c] - t0[i, c]) / dt
                 vc = u + (v[i, c] - u) * decay + gravity[c] * hs
                 v[i, c] = vc
-                p[i, c] = x[i, c] + vc * hs
+                pc = x[i, c] + vc * hs
+                dl = -(pc - (t0[i, c] * (1.0 - s) + t1[i, c] * s)) / (wi + a)
+                lam_a[i, c] = dl
+                p[i, c] = pc + wi * dl
         for i in range(n_free, n_all):
             for c in range(3):
                 p[i, c] = t0[i, c] * (1.0 - s) + t1[i, c] * s
         lam_e[:] = 0.0
-        lam_a[:] = 0.0
         for it in range(n_iter):
-            for i in range(n_free):
+            for i in range(n_free if it > 0 else 0):
                 a = att_alpha[i] / (hs * hs)
                 wi = inv_m[i]
                 for c in range(3):
@@ -251,6 +371,8 @@ def _frame_loop(x, v, hint, t0, t1, inv_m, n_free, att_alpha, edges, rest, alpha
                     dl = (-C - a * lam_a[i, c]) / (wi + a)
                     lam_a[i, c] += dl
                     p[i, c] += wi * dl
+            for i in range(n_free):
+                _tether(p, i, te.anchor, te.length)
             for e in range(edges.shape[0]):
                 ia = edges[e, 0]
                 ib = edges[e, 1]
@@ -273,9 +395,9 @@ def _frame_loop(x, v, hint, t0, t1, inv_m, n_free, att_alpha, edges, rest, alpha
                 p[ib, 0] -= wb * f * dx
                 p[ib, 1] -= wb * f * dy
                 p[ib, 2] -= wb * f * dz
-            for k in range(samples.shape[0]):
-                _collide(k, p, x, hint, samples, margin, clear, q0, move, gap, friction, inv_m, b0, b1, n0, n1,
-                         adj_ptr, adj_idx, s_prev, s, it == 0 and k_sub == 0)
+        for k in range(samples.shape[0]):
+            _collide(k, p, x, hint, samples, margin, clear, q0, move, gap, friction, inv_m, b0, b1, n0, n1,
+                     adj_ptr, adj_idx, s_prev, s, k_sub == 0)
         for i in range(n_free):
             for c in range(3):
                 v[i, c] = (p[i, c] - x[i, c]) / hs
@@ -295,6 +417,7 @@ if HAVE_NUMBA:
     _lerp_normal = jit(_lerp_normal, inline=True)
     _dist2_to = jit(_dist2_to, inline=True)
     _collide = jit(_collide, inline=True)
+    _tether = jit(_tether, inline=True)
     _frame_loop = jit(_frame_loop)
 
 
@@ -395,10 +518,26 @@ def _collide_numpy(p, x, hint, samples, margin, clear, q0, move, gap, friction, 
     p[ib[two]] += fb[:, None] * corr[two]
 
 
-def _frame_numpy(x, v, hint, t0, t1, inv_m, n_free, att_alpha, edges, rest, colour_ptr, alpha_stretch,
-                 alpha_compress, samples, sample_ptr, margin, clear, move, gap, b0, b1, n0, n1, adj_table, gravity,
-                 damping, friction, dt, n_sub, n_iter):
+def _tether_numpy(p, anchor, length):
+    """:func:`_tether` of every free particle at once (the anchors are kinematic)."""
+    i = np.flatnonzero(anchor >= 0)
+    a = anchor[i]
+    d = p[i] - p[a]
+    ln = np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2])
+    over = ln > length[i]
+    f = (ln[over] - length[i][over]) / ln[over]
+    p[i[over]] -= f[:, None] * d[over]
+
+
+def _frame_numpy(state, tg, ed, te, sm, body, prm):
     """numpy twin of :func:`_frame_loop` (edges and samples updated one colour at a time)."""
+    x, v, inv_m, att_alpha = state
+    t0, t1 = tg
+    edges, rest, colour_ptr = ed
+    samples, sample_ptr, hint, margin, clear = sm
+    b0, b1, n0, n1, _, _, adj_table, move, gap = body
+    gravity, damping, friction, alpha_stretch, alpha_compress, dt, n_sub, n_iter = prm
+    n_free = len(v)
     hs = dt / n_sub
     decay = np.exp(-damping * hs)
     u = (t1[:n_free] - t0[:n_free]) / dt
@@ -415,10 +554,11 @@ def _frame_numpy(x, v, hint, t0, t1, inv_m, n_free, att_alpha, edges, rest, colo
         tgt = t0[:n_free] * (1.0 - s) + t1[:n_free] * s
         lam_e = np.zeros(len(edges))
         lam_a = np.zeros((n_free, 3))
-        for it in range(n_iter):
+        for _ in range(n_iter):
             dl = (-(p[:n_free] - tgt) - a_att * lam_a) / (wi + a_att)
             lam_a += dl
             p[:n_free] += wi * dl
+            _tether_numpy(p, te.anchor, te.length)
             for c in range(len(colour_ptr) - 1):
                 sl = slice(colour_ptr[c], colour_ptr[c + 1])
                 ia, ib = edges[sl, 0], edges[sl, 1]
@@ -433,65 +573,49 @@ def _frame_numpy(x, v, hint, t0, t1, inv_m, n_free, att_alpha, edges, rest, colo
                 f = np.where(ok, d_l / np.where(ok, ln, 1.0), 0.0)
                 p[ia] += (wa * f)[:, None] * dvec
                 p[ib] -= (wb * f)[:, None] * dvec
-            for c in range(len(sample_ptr) - 1):
-                rows = np.arange(sample_ptr[c], sample_ptr[c + 1])
-                _collide_numpy(p, x, hint, samples, margin, clear, q0, move, gap, friction, inv_m, b0, b1, n0, n1,
-                               adj_table, s_prev, s, rows, it == 0 and k == 0)
+        for c in range(len(sample_ptr) - 1):
+            rows = np.arange(sample_ptr[c], sample_ptr[c + 1])
+            _collide_numpy(p, x, hint, samples, margin, clear, q0, move, gap, friction, inv_m, b0, b1, n0, n1,
+                           adj_table, s_prev, s, rows, k == 0)
         v[:] = (p[:n_free] - x[:n_free]) / hs
         x[:] = p
     e = 0.5 * (x[samples[:, 0]] + x[samples[:, 1]]) - q0
     clear -= move + np.sqrt(e[:, 0] * e[:, 0] + e[:, 1] * e[:, 1] + e[:, 2] * e[:, 2])
 
 
-def cloth_frame(x, v, t0, t1, inv_m, n_free, att_alpha, edges, rest, colour_ptr, alpha_stretch, alpha_compress,
-                samples, sample_ptr, hint, margin, clear, move, gap, b0, b1, n0, n1, adjacency, gravity, damping,
-                friction, dt, n_sub, n_iter, compiled=None, scratch=None):
-    """Advance the cloth by one frame of ``dt`` seconds, in place.
+def cloth_frame(state: ClothState, targets: ClothTargets, edges: ClothEdges, tethers: ClothTethers,
+                samples: ClothSamples, body: ClothBody, params: ClothParams, compiled: bool | None = None,
+                scratch: ClothScratch | None = None) -> None:
+    """Advance the cloth by one frame of ``params.dt`` seconds, in place
+    (``state.x``, ``state.v``, ``samples.hint``, ``samples.clear``).
 
     Parameters
     ----------
-    x : (P, 3) particle positions (first ``n_free`` simulated, the rest
-        kinematic), updated.
-    v : (n_free, 3) velocities, updated.
-    t0, t1 : (P, 3) bound targets at the previous frame and at this one.
-    inv_m : (P,) inverse masses (0 for the kinematic particles).
-    att_alpha : (n_free,) attachment compliance (s^2).
-    edges : (E, 2) int64 particle pairs, sorted by colour; rest (E,) lengths.
-    colour_ptr : (C + 1,) start of each colour in ``edges``.
-    alpha_stretch, alpha_compress : edge compliances (s^2).
-    samples : (S, 2) int64 collision samples, the midpoint of two particles
-        (a particle itself when both are the same), sorted by colour (no two
-        of a colour share a particle); sample_ptr (K + 1,) colour starts.
-    hint : (S,) int64 nearest body vertex of each sample (-1: no body within
-        reach this frame: not tested), updated.
-    margin : (S,) clearance kept from the body (m).
-    clear : (S,) lower bound of each sample's distance to the body vertices
-        at the start of the frame; the search is skipped while the bound,
-        less the motion since, stays above ``margin + gap``; aged by the
-        frame's motion on return.
-    move : largest body vertex displacement over the frame (m).
-    gap : how much nearer than its nearest vertex the skin can be (m).
-    b0, b1, n0, n1 : (N, 3) body points and unit vertex normals at the
-        previous frame and at this one.
-    adjacency : ((N + 1,) indptr, (nnz,) indices, (N, D) -1 padded table)
-        of the body's vertex graph.
-    gravity : (3,) m/s^2; damping (1/s); friction (Coulomb coefficient).
-    dt : frame length (s); n_sub substeps; n_iter constraint passes each.
+    state : :class:`ClothState`, the particles (updated).
+    targets : :class:`ClothTargets`, their bound positions at the previous
+        frame and at this one.
+    edges : :class:`ClothEdges`, the distance constraints.
+    tethers : :class:`ClothTethers`, each free particle's largest distance
+        from the kinematic particle it hangs from.
+    samples : :class:`ClothSamples`, the collision samples; ``hint`` is
+        each sample's nearest body vertex (-1: no body within reach this
+        frame: not tested), ``clear`` a lower bound of its distance to the
+        body vertices at the start of the frame (the search is skipped
+        while the bound, less the motion since, stays above ``margin +
+        gap``; aged by the frame's motion on return).
+    body : :class:`ClothBody`, the collider at the previous frame and this one.
+    params : :class:`ClothParams`, frame length, substeps and material.
     compiled : use the numba loop (default: when numba is installed).
-    scratch : optional (lam_e (E,), lam_a (n_free, 3), p (P, 3), q0 (S, 3)) buffers.
+    scratch : optional :func:`make_scratch` buffers for the numba loop.
     """
     use = HAVE_NUMBA if compiled is None else bool(compiled and HAVE_NUMBA)
-    adj_ptr, adj_idx, adj_table = adjacency
+    body = body._replace(move=float(body.move), gap=float(body.gap))
+    params = ClothParams(np.asarray(params.gravity, dtype=np.float64), float(params.damping),
+                         float(params.friction), float(params.alpha_stretch), float(params.alpha_compress),
+                         float(params.dt), int(params.n_sub), int(params.n_iter))
     if not use:
-        _frame_numpy(x, v, hint, t0, t1, inv_m, n_free, att_alpha, edges, rest, colour_ptr, alpha_stretch,
-                     alpha_compress, samples, sample_ptr, margin, clear, float(move), float(gap), b0, b1, n0, n1,
-                     adj_table, np.asarray(gravity, dtype=np.float64), float(damping), float(friction), float(dt),
-                     int(n_sub), int(n_iter))
+        _frame_numpy(state, targets, edges, tethers, samples, body, params)
         return
     if scratch is None:
-        scratch = (np.empty(len(edges)), np.empty((n_free, 3)), np.empty_like(x), np.empty((len(samples), 3)))
-    lam_e, lam_a, p, q0 = scratch
-    _frame_loop(x, v, hint, t0, t1, inv_m, int(n_free), att_alpha, edges, rest, float(alpha_stretch),
-                float(alpha_compress), samples, margin, clear, float(move), float(gap), b0, b1, n0, n1, adj_ptr,
-                adj_idx, np.asarray(gravity, dtype=np.float64), float(damping), float(friction), float(dt),
-                int(n_sub), int(n_iter), lam_e, lam_a, p, q0)
+        scratch = make_scratch(len(edges.pairs), len(state.v), len(state.x), len(samples.pairs))
+    _frame_loop(state, targets, edges, tethers, samples, body, params, scratch)

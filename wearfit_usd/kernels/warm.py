@@ -8,7 +8,7 @@ import scipy.sparse as sp
 
 from .binding import add_rows, binding_eval, binding_eval_rows, diffusion_rhs, similarity_place, similarity_transforms
 from .closest import closest_candidates, closest_signed
-from .cloth import cloth_frame
+from .cloth import ClothBody, ClothEdges, ClothParams, ClothSamples, ClothState, ClothTargets, ClothTethers, cloth_frame
 from .grid import RadiusGrid
 from .guard import GuardBody, GuardState, guard_estimate, guard_frame
 from .jit import HAVE_NUMBA
@@ -69,10 +69,13 @@ def warm_up() -> bool:
     ptr = np.array([0, 3, 6, 9, 12], dtype=np.int64)
     idx = np.array([1, 2, 3, 0, 2, 3, 0, 1, 3, 0, 1, 2], dtype=np.int64)
     unit = pts / np.maximum(np.linalg.norm(pts, axis=1, keepdims=True), 1e-12)
-    cloth_frame(x, np.zeros((2, 3)), x.copy(), x.copy(), np.array([1.0, 1.0, 0.0]), 2, np.zeros(2),
-                np.array([[0, 1], [1, 2]], dtype=np.int64), np.array([0.5, 0.5]),
-                np.array([0, 1, 2], dtype=np.int64), 0.0, 1e-6, np.array([[0, 0], [1, 1]], dtype=np.int64),
-                np.array([0, 1, 2], dtype=np.int64), np.full(2, -1, dtype=np.int64), np.zeros(2), np.zeros(2),
-                0.0, 0.0, pts, pts, unit, unit, (ptr, idx, idx.reshape(4, 3)), np.array([0.0, -9.81, 0.0]),
-                1.0, 0.3, 1 / 30, 2, 2)
+    cloth_frame(ClothState(x, np.zeros((2, 3)), np.array([1.0, 1.0, 0.0]), np.zeros(2)),
+                ClothTargets(x.copy(), x.copy()),
+                ClothEdges(np.array([[0, 1], [1, 2]], dtype=np.int64), np.array([0.5, 0.5]),
+                           np.array([0, 1, 2], dtype=np.int64)),
+                ClothTethers(np.array([2, 2], dtype=np.int64), np.array([1.0, 0.5])),
+                ClothSamples(np.array([[0, 0], [1, 1]], dtype=np.int64), np.array([0, 1, 2], dtype=np.int64),
+                             np.full(2, -1, dtype=np.int64), np.zeros(2), np.zeros(2)),
+                ClothBody(pts, pts, unit, unit, ptr, idx, idx.reshape(4, 3), 0.0, 0.0),
+                ClothParams(np.array([0.0, -9.81, 0.0]), 1.0, 0.3, 0.0, 1e-6, 1 / 30, 2, 2))
     return True
