@@ -320,8 +320,8 @@ class _Carrier:
                     UsdShade.MaterialBindingAPI.Apply(dst).Bind(UsdShade.Material(self.stage.GetPrimAtPath(m)))
         api = UsdGeom.PrimvarsAPI(dst)
         for pv in UsdGeom.PrimvarsAPI(src).FindPrimvarsWithInheritance():
-            if pv.GetAttr().GetPrim() == src or api.HasPrimvar(pv.GetPrimvarName()):
-                continue  # its own primvars were carried above
+            if pv.GetAttr().GetPrim() == src or dst.GetAttribute(pv.GetAttr().GetName()).IsAuthored():
+                continue  # its own primvars were carried above (a schema's builtin is no opinion)
             v = pv.Get()
             if v is None:
                 continue
