@@ -30,11 +30,13 @@ import numpy as np
 
 from ..dress.apply import apply as apply_plan
 from ..dress.apply import dress
+from ..dress.hidden_body import SHOT_DEPTH, SHOT_MAX_GAP, hide_or_drop
 from ..dress.metrics import item_rigid_groups
 from ..dress.plan import DressPlan
 from ..dress.plan import plan as plan_dress
 from ..errors import NonFiniteError, USDInputError
 from ..fit.body_fit import fit_character
+from ..io.usd_carry import CarryPlan
 from ..io.usd_shot import ShotWriter
 from ..model import Character
 from ..motion.floor import place_on_floor
@@ -69,6 +71,8 @@ class AnimateOptions:
     pose_align: bool = True            # False: the dressing's body fit by similarity only (--no-pose)
     cloth: bool | None = None          # bind mode: loose parts as XPBD cloth (None: when the plan has any)
     max_frames: int | None = None      # refuse longer shots (retarget.OutputError)
+    carry_plan: object = None          # io.usd_carry.CarryPlan: the inputs' materials, primvars... to keep
+    hidden_body: str = "none"          # "subset": name the covered body faces; "delete": drop them (hidden_body)
 
 
 @dataclass
@@ -240,8 +244,9 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
     if clip_frames is None and n_frames > 2000:
         clip_frames = 500
     t_lbs = t_eval = t_pen = t_write = t_measure = 0.0
-    with ShotWriter(out_path, target, items, fps=rt.fps, n_frames=n_frames, clip_frames=clip_frames,
-                    velocities=opt.velocities,
+    written, carry_plan = _hidden_body(target, base_body, items, opt)
+    with ShotWriter(out_path, written, items, fps=rt.fps, n_frames=n_frames, clip_frames=clip_frames,
+                    velocities=opt.velocities, carry_plan=carry_plan,
                     skinned_items=items_for_skin if (opt.mode == "lbs" and opt.write_skinned_items) else None) as w:
         def write_block(a, block):
             nonlocal t_write
@@ -292,6 +297,21 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
                         "write_fps": n_frames / max(t_write, 1e-9),
                         "total": time.perf_counter() - t_all})
     return rep
+
+
+def _hidden_body(target: Character, base_body, items, opt: AnimateOptions):
+    """The target to write (its body without the hidden faces with
+    ``hidden_body="delete"``) and the carry plan with the hidden subsets:
+    faces covered at frame 0 and deep enough under the items to stay covered
+    in motion (dress.hidden_body.SHOT_DEPTH / SHOT_MAX_GAP)."""
+    if opt.hidden_body == "none":
+        return target, opt.carry_plan
+    body, subsets, keep = hide_or_drop(target.body, base_body, [(m.name, m.points, m.faces) for m in items],
+                                       delete=opt.hidden_body == "delete", depth=SHOT_DEPTH, max_gap=SHOT_MAX_GAP)
+    plan = opt.carry_plan if opt.carry_plan is not None else CarryPlan()
+    info(f"hidden body: {len(subsets.get('hidden_under_items', [])) if keep is None else int((~keep).sum())} "
+         f"faces {'deleted' if keep is not None else 'named hidden_under_items'}")
+    return replace(target, body=body), plan.with_hidden(subsets, keep)
 
 
 def _bind_dress(reference: Character, target: Character, dressed, opt: AnimateOptions, ref_plan):

@@ -14,6 +14,7 @@ from .args import (
     fps_arg,
     write_report,
 )
+from .output_options import add_carry_options
 
 
 def register(sub, common):
@@ -76,6 +77,7 @@ def register(sub, common):
     p.add_argument("--measure-every", type=int, default=None, metavar="N",
                    help="measure every Nth frame (and the last); default 1 with --report or --strict, "
                         "else no measuring")
+    add_carry_options(p)
     p.set_defaults(func=run)
     return p
 
@@ -85,6 +87,7 @@ def run(args) -> int:
     from ..animate.try_on import AnimateOptions, animate
     from ..io.bvh import read_bvh
     from ..io.usd import read_character
+    from ..io.usd_carry import CarryPlan
     from ..progress import info
     fps = args.fps
     check_inputs(args.reference, args.target, args.clip, args.mapping)
@@ -113,7 +116,10 @@ def run(args) -> int:
                           write_skinned_items=args.write_skinned_items, dress_pose=args.dress_pose,
                           untangle=args.untangle, measure_every=every, floor=args.floor,
                           pose_align=not args.no_pose, cloth=args.cloth,
-                          max_frames=args.max_frames)
+                          max_frames=args.max_frames,
+                          carry_plan=CarryPlan.for_dress(reference, target, reference.items,
+                                                         reference_inputs=args.reference_inputs),
+                          hidden_body="delete" if args.delete_hidden_body else "subset")
     rep = animate(reference, target, motion, args.output, opts)
     t = rep.timings
     info(f"wrote {args.output}: {rep.frames} frames at {rep.fps:g} fps, {len(reference.items)} items; "

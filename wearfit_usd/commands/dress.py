@@ -5,6 +5,7 @@ from pathlib import Path
 
 from ..errors import InputError
 from .args import K_MAX, bounded_int, check_distinct, check_inputs, check_output, write_report
+from .output_options import add_carry_options, dress_output
 
 
 def register(sub, common):
@@ -39,6 +40,7 @@ def register(sub, common):
                         "needed when the two skeletons' key joints cannot be paired")
     p.add_argument("--strict", action="store_true",
                    help="fail (instead of warning) when an item lies more than 0.5 m from the body")
+    add_carry_options(p)
     p.set_defaults(func=run)
     return p
 
@@ -72,7 +74,8 @@ def run(args) -> int:
     res = dress(ref, target, k=args.k, use_regions=not args.no_regions, rigid=rigid,
                 penetration=not args.no_push_out, strict_far=args.strict,
                 push_inherited=args.fix_reference_penetrations, body_points=body_points)
-    write_character(out, target, items=res.items)
+    body, plan, hidden = dress_output(args, ref, target, res.items)
+    write_character(out, target, items=res.items, body=body, carry_plan=plan)
     t = res.timings
     if args.report:
         from ..dress.metrics import dress_report
@@ -88,5 +91,5 @@ def run(args) -> int:
          f"skirt-like: {', '.join(res.plan.regions.skirt_items) or '-'}; "
          f"pushed out {int(res.moved.sum())} vertices; bind {t['bind_s']:.3f} s, "
          f"evaluate {t['evaluate_s'] * 1000:.1f} ms, penetration {t['penetration_s']:.3f} s"
-         + (f", untangle {t['untangle_s']:.3f} s" if "untangle_s" in t else ""))
+         + (f", untangle {t['untangle_s']:.3f} s" if "untangle_s" in t else "") + f"; {hidden}")
     return 0

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from .args import check_distinct, check_inputs, check_output, write_report
+from .output_options import add_carry_options
 
 
 def register(sub, common):
@@ -21,6 +22,7 @@ def register(sub, common):
     p.add_argument("--force-registration", action="store_true",
                    help="run the non-rigid registration even when the topologies are equal")
     p.add_argument("--report", metavar="JSON", help="also write the fit diagnostics as JSON")
+    add_carry_options(p, hidden=False)
     p.set_defaults(func=run)
     return p
 
@@ -66,8 +68,10 @@ def run(args) -> int:
     for w in result.warnings:
         warn(w)
     char = fitted_character(ref, target, result)
+    from ..io.usd_carry import CarryPlan
+    plan = CarryPlan.for_dress(ref, target, [], reference_inputs=args.reference_inputs, body_from_reference=True)
     write_character(out, char, items=[], up_axis=target.up_axis,
-                    meters_per_unit=target.meters_per_unit)
+                    meters_per_unit=target.meters_per_unit, carry_plan=plan)
     d = result.diagnostics
     jm = d.get("joint_match")
     if jm and not jm["by_names"]:

@@ -26,6 +26,7 @@ from ..transforms import invert, stage_to_internal, transform_points
 from .atomic import atomic_output
 from .gltf import is_gltf, read_gltf_character
 from .usd_author import StageLayout, author_body, author_skeleton, author_static_item
+from .usd_carry import CarryPlan, carry
 
 _SKIP_PRIMVARS = {"skel:jointIndices", "skel:jointWeights", "skel:geomBindTransform",
                   "skel:skinningMethod"}
@@ -496,13 +497,16 @@ def save_layer(layer, dest) -> None:
 
 def write_character(path, character: Character, items: list[Mesh] | None = None,
                     body: Mesh | None = None, up_axis: str | None = None,
-                    meters_per_unit: float | None = None, skinned_items: bool = False) -> Path:
+                    meters_per_unit: float | None = None, skinned_items: bool = False,
+                    carry_plan: CarryPlan | None = None) -> Path:
     """Write a static rigged stage: SkelRoot with Skeleton + skinned body, and
     items as plain meshes under /Root/Items (or skinned inside the SkelRoot
     with ``skinned_items`` when they carry joint influences).
 
     Points are taken in internal space and written in the stage space given by
     ``up_axis``/``meters_per_unit`` (default: the character's own).
+    ``carry_plan``: the inputs' materials, primvars, subsets and attributes
+    to carry onto the written meshes (:mod:`.usd_carry`).
     Returns the written path.
     """
     _, Sdf, Usd, UsdGeom, UsdSkel, _ = _pxr()
@@ -519,8 +523,10 @@ def write_character(path, character: Character, items: list[Mesh] | None = None,
             author_skeleton(layout, skel)
         author_body(layout, body, skel)
         UsdGeom.Xform.Define(stage, layout.items_path)
+        item_paths = {}
         for item in items:
-            author_static_item(layout, item, skel if skinned_items else None)
+            item_paths[item.name] = author_static_item(layout, item, skel if skinned_items else None).GetPath()
+        carry(carry_plan, stage, path, layout.body_path, item_paths)
         stage.SetStartTimeCode(0)
         stage.SetEndTimeCode(0)
         stage.SetTimeCodesPerSecond(character.time_codes_per_second)

@@ -43,6 +43,7 @@ from .usd_author import (
     vt_extent,
     vt_points,
 )
+from .usd_carry import CarryPlan, carry
 
 #: the value-clip layers the writer makes in ``<shot>.clips/``; nothing else
 #: in that folder is ever replaced or deleted
@@ -57,7 +58,9 @@ class ShotWriter:
     are given per frame by :meth:`write_frame`; ``fps``: output frame rate
     (timeCodesPerSecond = framesPerSecond = fps); frames are time codes
     0..n_frames-1. ``skinned_items``: items with joint influences written as
-    skinned meshes in the SkelRoot instead of point caches.
+    skinned meshes in the SkelRoot instead of point caches. ``carry_plan``:
+    the inputs' materials, primvars, subsets and attributes carried onto the
+    written meshes (:mod:`.usd_carry`).
 
     Use as a context manager; nothing appears at ``path`` unless the block
     completes (temporary file + rename).
@@ -66,20 +69,20 @@ class ShotWriter:
     def __init__(self, path, target: Character, items: list[Mesh], fps: float, n_frames: int,
                  clip_frames: int | None = None, velocities: bool = False,
                  skinned_items: list[Mesh] | None = None, up_axis: str | None = None,
-                 meters_per_unit: float | None = None):
+                 meters_per_unit: float | None = None, carry_plan: CarryPlan | None = None):
         self._tmp = None
         self._clip_dir_tmp = None
         self.stage = None
         self._clip_stage = None
         try:
             self._start(path, target, items, fps, n_frames, clip_frames, velocities, skinned_items,
-                        up_axis, meters_per_unit)
+                        up_axis, meters_per_unit, carry_plan)
         except BaseException:
             self.abort()
             raise
 
     def _start(self, path, target, items, fps, n_frames, clip_frames, velocities, skinned_items,
-               up_axis, meters_per_unit):
+               up_axis, meters_per_unit, carry_plan=None):
         from pxr import Usd, UsdGeom, UsdSkel
         self.path = Path(path)
         self.fps = float(fps)
@@ -136,8 +139,10 @@ class ShotWriter:
                 mesh.CreateExtentAttr(vt_extent(pts))
             self._item_prims.append(ipath)
         self.skinned_items = list(skinned_items or [])
+        carried = [(m.name, p) for m, p in zip(self.items, self._item_prims)]
         for item in self.skinned_items:
-            author_static_item(self.layout, item, target.skeleton)
+            carried.append((item.name, author_static_item(self.layout, item, target.skeleton).GetPath()))
+        carry(carry_plan, self.stage, self.path, self.layout.body_path, carried)
         self.stage.SetStartTimeCode(0)
         self.stage.SetEndTimeCode(max(self.n_frames - 1, 0))
         self.stage.SetTimeCodesPerSecond(self.fps)

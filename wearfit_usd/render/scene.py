@@ -6,7 +6,8 @@ a colour, and its points per frame in internal space (Y up, metres, whatever
 the stage's upAxis and metersPerUnit). Skinned meshes are posed through
 UsdSkel (``UsdSkel.Cache`` -> ``SkelQuery.ComputeSkinningTransforms`` ->
 ``SkinningQuery.ComputeSkinnedPoints``) at each time code; other meshes use
-their (possibly time-sampled) points and transforms.
+their (possibly time-sampled) points and transforms. Faces in a mesh's
+``hidden_under_items`` GeomSubset (the body under the items) are not drawn.
 
 A frame whose points equal the previous frame's reuses the same array object,
 so the renderer can skip re-uploading unchanged meshes by identity.
@@ -21,6 +22,7 @@ import numpy as np
 
 from ..errors import InputError, USDInputError
 from ..io.gltf import is_gltf, read_gltf_frames
+from ..io.usd_carry import HIDDEN_SUBSET
 from ..transforms import stage_to_internal, transform_points
 from .lighting import BODY_COLOR, item_colors
 
@@ -188,7 +190,12 @@ def _triangles(prim, path, time):
         raise USDInputError(path, f"mesh {prim.GetPath()}: faceVertexCounts sum {counts.sum()} "
                                   f"!= {len(idx)} faceVertexIndices")
     left = mesh.GetOrientationAttr().Get() == UsdGeom.Tokens.leftHanded
-    faces, _ = triangulate(counts, idx, left)
+    faces, t2p = triangulate(counts, idx, left)
+    # body faces the items cover (dress/animate's GeomSubset) are not drawn
+    sub = prim.GetChild(HIDDEN_SUBSET)
+    hidden = sub.GetAttribute("indices").Get(time) if sub and sub.IsA(UsdGeom.Subset) else None
+    if hidden is not None and len(hidden):
+        faces = faces[~np.isin(t2p, np.asarray(hidden, dtype=np.int64))]
     return faces
 
 

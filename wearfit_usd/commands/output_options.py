@@ -1,0 +1,34 @@
+"""Output options shared by `fit`, `dress` and `animate`: what the written
+stage keeps of its inputs (:mod:`wearfit_usd.io.usd_carry`) and the body
+hidden under the items (:mod:`wearfit_usd.dress.hidden_body`)."""
+from __future__ import annotations
+
+
+def add_carry_options(p, hidden: bool = True) -> None:
+    """``--reference-inputs`` (and with ``hidden`` ``--delete-hidden-body``) on parser ``p``."""
+    p.add_argument("--reference-inputs", action="store_true",
+                   help="reference the input files' prims (materials, UVs, attributes) instead of copying "
+                        "them, so edits of the inputs flow through; the output authors only the computed "
+                        "points, normals and skinning")
+    if hidden:
+        p.add_argument("--delete-hidden-body", action="store_true",
+                       help="write the body without the faces the items cover (for engines; weights, UVs "
+                            "and other primvars re-indexed) instead of naming them in the GeomSubset "
+                            "hidden_under_items")
+
+
+def dress_output(args, reference, target, items):
+    """(body to write, CarryPlan, one-line summary) of a `dress` output:
+    the target body with its hidden subsets (or without the hidden faces)."""
+    from ..dress.hidden_body import hide_or_drop
+    from ..io.usd_carry import CarryPlan
+    plan = CarryPlan.for_dress(reference, target, items, reference_inputs=args.reference_inputs)
+    body, subsets, keep = hide_or_drop(target.body, target.body.points,
+                                       [(m.name, m.points, m.faces) for m in items],
+                                       delete=args.delete_hidden_body)
+    plan = plan.with_hidden(subsets, keep)
+    if keep is not None:
+        what = f"body written without {int((~keep).sum())} hidden faces of {len(keep)}"
+    else:
+        what = f"{len(subsets['hidden_under_items'])} body faces hidden under the items"
+    return body, plan, what
