@@ -42,6 +42,7 @@ import numpy as np
 
 from ..animate.try_on import AnimateOptions, animate
 from ..commands.fit import fitted_character
+from ..commands.output_options import dress_output
 from ..dress.apply import dress
 from ..dress.metrics import dress_report
 from ..dress.plan import plan
@@ -49,6 +50,7 @@ from ..errors import InputError
 from ..fit.body_fit import fit_character
 from ..io.bvh import read_bvh
 from ..io.usd import read_character, write_character
+from ..io.usd_carry import CarryPlan
 from ..progress import set_verbosity
 from ..render.media import write_png
 from .cache import Cache, atomic_write_bytes, file_digest, publish, result_key
@@ -194,7 +196,8 @@ def task_fit_product(reference, target, fit, meta: dict) -> dict:
     obj = Cache(meta["cache_root"]).object_path(meta["key"], meta["suffix"])
     with _Task(f"writing the fitted body of {meta['id']}") as t:
         char = fitted_character(reference, target, fit)
-        write_character(obj, char, items=[], up_axis=target.up_axis, meters_per_unit=target.meters_per_unit)
+        write_character(obj, char, items=[], up_axis=target.up_axis, meters_per_unit=target.meters_per_unit,
+                        carry_plan=CarryPlan.for_dress(reference, target, [], body_from_reference=True))
         d = fit.diagnostics
         figures = {k: d.get(k) for k in ("fit_to_target_mean_mm", "fit_to_target_p99_mm", "target_to_fit_mean_mm",
                                           "target_to_fit_p99_mm", "flipped_triangles", "time_total_fit_s")
@@ -215,7 +218,8 @@ def task_dress(reference, target, fit, plan_key: str, meta: dict) -> dict:
         p, built = _plan_of(reference, plan_key, meta["k"])
         res = dress(reference, target, k=meta["k"], prepared=p,
                     body_points=np.asarray(fit.points, dtype=np.float64))
-        write_character(obj, target, items=res.items)
+        body, carry, _ = dress_output(reference, target, res.items)
+        write_character(obj, target, items=res.items, body=body, carry_plan=carry)
         rows = dress_report(reference, target, res)
         figures = {"items": rows,
                    "new_penetration_pct": max((r["new_pen_pct"] for r in rows), default=0.0),
@@ -235,7 +239,8 @@ def task_animate(reference, target, plan_key: str, meta: dict) -> dict:
             raise JobError(f"{clip['path']}: file not found")
         motion = read_bvh(clip["path"])
         opts = AnimateOptions(k=meta["k"], start=clip["start"], end=clip["end"], fps=meta["fps"],
-                              measure_every=meta["measure_every"])
+                              measure_every=meta["measure_every"], hidden_body="subset",
+                              carry_plan=CarryPlan.for_dress(reference, target, reference.items))
         p, built = _plan_of(reference, plan_key, meta["k"])
         rep = animate(reference, target, motion, obj, opts, ref_plan=p)
         figures = {"frames": rep.frames, "fps": rep.fps,

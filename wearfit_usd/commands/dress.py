@@ -74,7 +74,8 @@ def run(args) -> int:
     res = dress(ref, target, k=args.k, use_regions=not args.no_regions, rigid=rigid,
                 penetration=not args.no_push_out, strict_far=args.strict,
                 push_inherited=args.fix_reference_penetrations, body_points=body_points)
-    body, plan, hidden = dress_output(args, ref, target, res.items)
+    body, plan, hidden = dress_output(ref, target, res.items, reference_inputs=args.reference_inputs,
+                                      delete_hidden_body=args.delete_hidden_body)
     write_character(out, target, items=res.items, body=body, carry_plan=plan)
     t = res.timings
     if args.report:

@@ -17,15 +17,16 @@ def add_carry_options(p, hidden: bool = True) -> None:
                             "hidden_under_items")
 
 
-def dress_output(args, reference, target, items):
+def dress_output(reference, target, items, reference_inputs: bool = False, delete_hidden_body: bool = False):
     """(body to write, CarryPlan, one-line summary) of a `dress` output:
-    the target body with its hidden subsets (or without the hidden faces)."""
+    the target body with its hidden subsets (or without the hidden faces).
+    `wearfit dress` and `wearfit batch` both write through this."""
     from ..dress.hidden_body import hide_or_drop
     from ..io.usd_carry import CarryPlan
-    plan = CarryPlan.for_dress(reference, target, items, reference_inputs=args.reference_inputs)
+    plan = CarryPlan.for_dress(reference, target, items, reference_inputs=reference_inputs)
     body, subsets, keep = hide_or_drop(target.body, target.body.points,
                                        [(m.name, m.points, m.faces) for m in items],
-                                       delete=args.delete_hidden_body)
+                                       delete=delete_hidden_body)
     plan = plan.with_hidden(subsets, keep)
     if keep is not None:
         what = f"body written without {int((~keep).sum())} hidden faces of {len(keep)}"
