@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from tests.conftest import BVH_DIR, USD_DIR
-from wearfit_usd.animate.cloth import ClothSolver, colour_edges, tethers
+from wearfit_usd.animate.cloth import ClothSolver, colour_edges, default_collider, tethers
+from wearfit_usd.dress import regions as R
 from wearfit_usd.geometry.closest import SurfaceQuery
 from wearfit_usd.geometry.mesh import edges as mesh_edges
 from wearfit_usd.kernels import HAVE_NUMBA
@@ -290,3 +291,14 @@ def test_longskirt_walk_keeps_the_legs_inside(tmp_path):
     assert np.percentile(ratios, 99, axis=1).max() < 2.5
     assert ratios.max() < 8.0
     assert rep.worst_frame_penetration < 0.01
+
+
+def test_default_collider_leaves_out_the_arms_of_the_plans_body():
+    """The cloth collides with every body vertex but the arms' (a hand beside
+    a skirt threw its side out in a flap: the arms were kept because the
+    lookup read a plan field that no longer exists)."""
+    labels = np.array([R.TORSO, R.LEFT_ARM, R.RIGHT_ARM, R.LEFT_LEG, R.HEAD, R.RIGHT_LEG])
+    plan = SimpleNamespace(regions=SimpleNamespace(body=labels))
+    assert default_collider(plan, 6).tolist() == [True, False, False, True, True, True]
+    # regions of another body (other vertex count): every vertex collides
+    assert default_collider(plan, 7).all()

@@ -198,7 +198,8 @@ def default_collider(plan, n: int) -> np.ndarray:
     between skirt and hip, with the cloth on both sides of it, has no side
     to push it to); a hand sinking into the cloth is the lesser evil."""
     keep = np.ones(n, dtype=bool)
-    labels = getattr(plan, "body_labels", None)
+    regions = getattr(plan, "regions", None)
+    labels = None if regions is None else regions.body
     if labels is not None and len(labels) == n:
         keep &= ~np.isin(labels, [R.LEFT_ARM, R.RIGHT_ARM])
     return keep
