@@ -6,6 +6,7 @@ from pathlib import Path
 from ..errors import InputError
 from .args import K_MAX, bounded_int, check_distinct, check_inputs, check_output, write_report
 from .output_options import add_carry_options, dress_output
+from .targets import add_target_options, load_target, output_items
 
 
 def register(sub, common):
@@ -41,6 +42,7 @@ def register(sub, common):
     p.add_argument("--strict", action="store_true",
                    help="fail (instead of warning) when an item lies more than 0.5 m from the body")
     add_carry_options(p)
+    add_target_options(p, items_default="both")
     p.set_defaults(func=run)
     return p
 
@@ -57,7 +59,7 @@ def run(args) -> int:
         check_output(args.report, (ref_path, tgt_path), suffixes=(), what="--report")
         check_distinct({"-o": out, "--report": args.report})
     ref = read_character(ref_path)
-    target = read_character(tgt_path)
+    target, fitted = load_target(ref, tgt_path, args.rig_from_reference, pose_align=not args.no_pose)
     if not ref.items:
         raise InputError(ref_path, "the reference holds no wearable items (no Mesh besides the body)")
     rigid = args.rigid
@@ -67,8 +69,8 @@ def run(args) -> int:
         if unknown:
             raise InputError(ref_path, f"--rigid names unknown items {unknown}; items: "
                                        f"{[m.name for m in ref.items]}")
-    body_points = None
-    if args.no_pose:
+    body_points = fitted
+    if args.no_pose and body_points is None:
         from ..fit.body_fit import fit_character
         body_points = fit_character(ref, target, {"pose_align": False}).points
     res = dress(ref, target, k=args.k, use_regions=not args.no_regions, rigid=rigid,
@@ -76,7 +78,13 @@ def run(args) -> int:
                 push_inherited=args.fix_reference_penetrations, body_points=body_points)
     body, plan, hidden = dress_output(ref, target, res.items, reference_inputs=args.reference_inputs,
                                       delete_hidden_body=args.delete_hidden_body)
-    write_character(out, target, items=res.items, body=body, carry_plan=plan)
+    points, skinned = output_items(res, target, args.items)
+    if skinned:  # the skinned copies carry their items' materials and primvars too
+        from dataclasses import replace
+
+        from ..io.usd_carry import CarryPlan
+        plan = replace(plan, items={**CarryPlan.for_dress(ref, target, skinned).items, **plan.items})
+    write_character(out, target, items=points + skinned, body=body, carry_plan=plan, skinned_items=bool(skinned))
     t = res.timings
     if args.report:
         from ..dress.metrics import dress_report
@@ -93,4 +101,8 @@ def run(args) -> int:
          f"pushed out {int(res.moved.sum())} vertices; bind {t['bind_s']:.3f} s, "
          f"evaluate {t['evaluate_s'] * 1000:.1f} ms, penetration {t['penetration_s']:.3f} s"
          + (f", untangle {t['untangle_s']:.3f} s" if "untangle_s" in t else "") + f"; {hidden}")
+    if skinned:
+        info(f"  items as {args.items}: " + ("points under /Root/Items, " if points else "")
+             + "skinned to the target skeleton inside the SkelRoot "
+             f"({', '.join(m.name for m in skinned)})")
     return 0

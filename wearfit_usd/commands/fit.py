@@ -31,18 +31,10 @@ def fitted_character(ref, target, result):
     """A Character holding the fitted reference body: reference topology and
     skin weights, reference skeleton re-bound at the posed joint transforms
     (mapped joints on the target's joints), target up axis/units."""
-    import numpy as np
+    from ..fit.rig import fitted_skeleton
+    from ..model import Character
 
-    from ..model import Character, Skeleton
-
-    skel = None
-    if ref.skeleton is not None:
-        world = result.joint_world if result.joint_world is not None else ref.skeleton.bind_world
-        k = ref.skeleton.skel_to_world
-        tmp = Skeleton(ref.skeleton.joint_names, ref.skeleton.joint_paths, ref.skeleton.parents,
-                       np.asarray(world), ref.skeleton.rest_local, k, ref.skeleton.path)
-        tmp.rest_local = tmp.local_from_world(tmp.bind_world)  # rest pose = new bind pose
-        skel = tmp
+    skel = None if ref.skeleton is None else fitted_skeleton(ref.skeleton, result.joint_world)
     body = ref.body.copy_with_points(result.points)
     return Character(source=str(target.source), up_axis=target.up_axis,
                      meters_per_unit=target.meters_per_unit, to_internal=target.to_internal,

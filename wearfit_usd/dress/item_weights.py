@@ -1,0 +1,230 @@
+"""Skin weights for dressed items, derived from their K-triangle binding.
+
+An item vertex bound to K body triangles with blend weights ``w_k`` and local
+coordinates ``(a, b, c)`` (:class:`binding.Binding`) sits over the point
+``(1 - a - b) v1 + a v2 + b v3`` of each triangle. Its skin weights are the
+bound triangles' vertex weights blended by these coefficients (barycentric
+coordinates clamped to the triangle, times ``w_k``), so the item is skinned
+the way the body under it is. The strongest ``max_influences`` (default 8)
+are kept and renormalised. Rigid parts (:mod:`rigid_parts`: shoes, hats,
+glasses) whose bound body patch follows one joint (``ONE_JOINT_SHARE`` of
+its weight: a hat, glasses on the head) are skinned to that joint alone, so
+linear blend skinning moves them as one piece; a part over several joints (a
+shoe over foot and toes) keeps the per-vertex weights of the skin under it
+and flexes where the body does (one blended weight set would be no more
+rigid under LBS, and the bent toes came through it).
+
+Arrays are numpy; body weights are (N, K) joint indices and weights into a
+skeleton of ``n_joints`` joints, on the body topology the binding indexes.
+"""
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..geometry.closest import SurfaceQuery
+from .binding import Binding
+
+MAX_INFLUENCES = 8
+#: a rigid group whose body patch has this share of one joint's weight is
+#: skinned to that joint alone
+ONE_JOINT_SHARE = 0.9
+#: name suffix of skinned item copies written beside their point copies
+SKINNED_SUFFIX = "_skinned"
+
+
+def binding_coefficients(binding: Binding, n_body: int) -> sp.csr_matrix:
+    """(M, N) non-negative coefficients of each item vertex on the body
+    vertices, rows summing to 1.
+
+    Parameters
+    ----------
+    binding : Binding
+        ``triangles`` (M, K), ``weights`` (M, K), ``local`` (M, K, 3).
+    n_body : int
+        Number of body vertices N.
+
+    Returns
+    -------
+    scipy.sparse.csr_matrix
+        (M, N): per bound triangle, its clamped barycentric coordinates
+        ``(1 - a - b, a, b)`` times the triangle's blend weight.
+    """
+    tri = np.asarray(binding.triangles)
+    m, k = tri.shape
+    a = binding.local[..., 0]
+    b = binding.local[..., 1]
+    bary = np.clip(np.stack([1.0 - a - b, a, b], axis=-1), 0.0, None)  # (M, K, 3)
+    s = bary.sum(axis=-1, keepdims=True)
+    bary = np.where(s > 1e-12, bary / np.maximum(s, 1e-12), 1.0 / 3.0)
+    vals = bary * np.asarray(binding.weights)[..., None]
+    cols = np.asarray(binding.faces)[tri]  # (M, K, 3)
+    rows = np.repeat(np.arange(m), k * 3)
+    c = sp.csr_matrix((vals.ravel(), (rows, cols.ravel())), shape=(m, n_body))
+    c.sum_duplicates()
+    norm = np.asarray(c.sum(axis=1)).ravel()
+    return sp.diags(1.0 / np.maximum(norm, 1e-12)) @ c
+
+
+def weight_matrix(joint_indices: np.ndarray, joint_weights: np.ndarray, n_joints: int) -> sp.csr_matrix:
+    """(N, K) influences -> (N, J) sparse weight matrix (duplicates summed)."""
+    ji = np.asarray(joint_indices, dtype=np.int64)
+    n, k = ji.shape
+    w = sp.csr_matrix((np.asarray(joint_weights, dtype=np.float64).ravel(),
+                       (np.repeat(np.arange(n), k), ji.ravel())), shape=(n, n_joints))
+    w.sum_duplicates()
+    return w
+
+
+def prune(weights, max_influences: int = MAX_INFLUENCES):
+    """The strongest ``max_influences`` of each row of an (M, J) weight
+    matrix (dense or sparse), renormalised.
+
+    Returns
+    -------
+    (M, min(max_influences, J)) int64 joint indices, strongest first, and
+    float64 weights (rows sum to 1; unused slots have weight 0).
+    """
+    dense = weights.toarray() if sp.issparse(weights) else np.asarray(weights, dtype=np.float64)
+    dense = np.clip(dense, 0.0, None)
+    k = min(max_influences, dense.shape[1])
+    if k < dense.shape[1]:
+        idx = np.argpartition(-dense, k - 1, axis=1)[:, :k]
+    else:
+        idx = np.broadcast_to(np.arange(k), dense.shape).copy()
+    w = np.take_along_axis(dense, idx, axis=1)
+    order = np.argsort(-w, axis=1, kind="stable")
+    idx = np.take_along_axis(idx, order, axis=1)
+    w = np.take_along_axis(w, order, axis=1)
+    s = w.sum(axis=1, keepdims=True)
+    if (s <= 1e-12).any():
+        raise ValueError(f"{int((s <= 1e-12).sum())} item vertices got no skin weight")
+    return idx.astype(np.int64), w / s
+
+
+def item_skin_weights(binding: Binding, body_joint_indices: np.ndarray, body_joint_weights: np.ndarray,
+                      n_joints: int, rigid_groups: list | None = None,
+                      max_influences: int = MAX_INFLUENCES):
+    """Skin weights of every bound item vertex.
+
+    Parameters
+    ----------
+    binding : Binding
+        The items' binding (M vertices) to a body of N vertices.
+    body_joint_indices, body_joint_weights : (N, K) arrays
+        The body's influences, on the binding's body topology.
+    n_joints : int
+        Joints of the skeleton the body weights index.
+    rigid_groups : list of (item vertex indices (P,), body vertex indices (Q,),
+        body vertex weights (Q,)), optional
+        Rigid parts (:class:`plan.DressPlan.rigid_groups`); a group whose
+        body patch follows one joint is skinned to it alone.
+    max_influences : int
+        Influences kept per vertex (default 8).
+
+    Returns
+    -------
+    (M, I) int64 joint indices and (M, I) float64 weights, rows summing to 1,
+    I = min(max_influences, n_joints).
+    """
+    body_w = weight_matrix(body_joint_indices, body_joint_weights, n_joints)
+    coef = binding_coefficients(binding, body_w.shape[0])
+    dense = (coef @ body_w).toarray()
+    for gv, bv, bw in rigid_groups or []:
+        gv = np.asarray(gv, dtype=np.int64)
+        if len(gv) == 0:
+            continue
+        bw = np.asarray(bw, dtype=np.float64)
+        common = (bw / bw.sum()) @ body_w[np.asarray(bv, dtype=np.int64)].toarray()  # (J,)
+        j = int(np.argmax(common))
+        if common[j] >= ONE_JOINT_SHARE:
+            # the patch follows one joint (a hat on the head, glasses): the
+            # whole group on that joint alone moves rigidly
+            dense[gv] = 0.0
+            dense[gv, j] = 1.0
+        # else (a shoe over foot and toes): each vertex keeps the weights of
+        # the skin under it, so the shoe flexes where the foot does; one
+        # blended weight set for the whole group is not rigid either (LBS of
+        # a blend of joints) and left the toes 9 % inside the bent foot
+    return prune(dense, max_influences)
+
+
+def transfer_weights(body_points: np.ndarray, body_faces: np.ndarray,
+                     body_joint_indices: np.ndarray, body_joint_weights: np.ndarray,
+                     item_points: np.ndarray, n_joints: int, max_influences: int = 4,
+                     query: SurfaceQuery | None = None):
+    """Skin weights for (M, 3) ``item_points`` from a skinned body.
+
+    body_points (N, 3), body_faces (T, 3), body influences (N, K) indices and
+    weights into a skeleton of ``n_joints`` joints. Returns (M, max_influences)
+    joint indices and weights (rows sum to 1).
+    """
+    q = query if query is not None else SurfaceQuery(body_faces, body_points)
+    res = q.closest(item_points)
+    tri = np.asarray(body_faces)[res["triangle"]]  # (M, 3)
+    bary = np.clip(res["bary"], 0.0, 1.0)
+    bary /= bary.sum(axis=1, keepdims=True)
+    m = len(item_points)
+    dense = np.zeros((m, n_joints))
+    rows = np.repeat(np.arange(m), body_joint_indices.shape[1])
+    for c in range(3):
+        v = tri[:, c]
+        np.add.at(dense, (rows, body_joint_indices[v].ravel()),
+                  (body_joint_weights[v] * bary[:, c:c + 1]).ravel())
+    k = min(max_influences, n_joints)
+    idx = np.argsort(-dense, axis=1)[:, :k]
+    w = np.take_along_axis(dense, idx, axis=1)
+    w /= np.maximum(w.sum(axis=1, keepdims=True), 1e-12)
+    return idx.astype(np.int64), w
+
+
+def target_body_weights(target_body, fitted_points: np.ndarray, fitted_faces: np.ndarray, n_joints: int,
+                        max_influences: int = MAX_INFLUENCES):
+    """The target body's skin weights on the fitted reference body (the body
+    topology a dressing plan's binding indexes): the target's own when the
+    topology is the same (the fit's fast path), else copied from the closest
+    target surface point (:func:`transfer_weights`).
+
+    Returns (N_ref, I) joint indices and weights.
+    """
+    if (len(target_body.points) == len(fitted_points) and target_body.faces.shape == fitted_faces.shape
+            and np.array_equal(target_body.faces, fitted_faces)):
+        return target_body.joint_indices, target_body.joint_weights
+    return transfer_weights(target_body.points, target_body.faces, target_body.joint_indices,
+                            target_body.joint_weights, fitted_points, n_joints, max_influences=max_influences)
+
+
+def skinned_items(result, target, suffix: str = "", max_influences: int = MAX_INFLUENCES) -> list:
+    """The items of a dressing skinned to the target's skeleton.
+
+    Parameters
+    ----------
+    result : dress.apply.DressResult
+        Items dressed on ``target``'s body in its bind pose; its plan's
+        binding and rigid groups give the weights, its ``body_points`` (the
+        fitted reference body) the body they are read on.
+    target : model.Character
+        The rigged target (skeleton and skinned body).
+    suffix : str
+        Appended to each item's name (e.g. ``"_skinned"`` beside point copies).
+
+    Returns
+    -------
+    list of model.Mesh
+        The dressed items with (M_i, I) ``joint_indices``/``joint_weights``
+        into ``target.skeleton``'s joints, points in the bind pose.
+    """
+    if target.skeleton is None or target.body.joint_indices is None:
+        raise ValueError(f"{target.source}: the target has no skinned body to skin the items to")
+    pl = result.plan
+    n_joints = target.skeleton.n_joints
+    body_ji, body_jw = target_body_weights(target.body, result.body_points, pl.binding.faces, n_joints,
+                                           max_influences)
+    ji, jw = item_skin_weights(pl.binding, body_ji, body_jw, n_joints, pl.rigid_groups, max_influences)
+    out = []
+    for item, sl in zip(result.items, pl.item_slices()):
+        m = item.copy_with_points(item.points)
+        m.name = f"{item.name}{suffix}"
+        m.joint_indices, m.joint_weights = ji[sl], jw[sl]
+        out.append(m)
+    return out
