@@ -16,6 +16,16 @@ import numpy as np
 
 from .transforms import invert, transform_points
 
+#: name suffix of an item's skinned copy written beside its point copy
+#: (``wearfit dress --items both``); readers and the renderer take one of the two
+SKINNED_SUFFIX = "_skinned"
+
+
+def without_skinned_copies(names) -> list[bool]:
+    """Per name, whether to keep it: ``<item>_skinned`` is dropped when
+    ``<item>`` is among ``names`` (the same item written twice)."""
+    plain = set(names)
+    return [not (n.endswith(SKINNED_SUFFIX) and n[:-len(SKINNED_SUFFIX)] in plain) for n in names]
 
 @dataclass
 class Primvar:

@@ -42,7 +42,7 @@ import numpy as np
 
 from ..animate.try_on import AnimateOptions, animate
 from ..commands.fit import fitted_character
-from ..commands.output_options import dress_output
+from ..commands.output_options import write_dressed
 from ..dress.apply import dress
 from ..dress.metrics import dress_report
 from ..dress.plan import plan
@@ -218,8 +218,7 @@ def task_dress(reference, target, fit, plan_key: str, meta: dict) -> dict:
         p, built = _plan_of(reference, plan_key, meta["k"])
         res = dress(reference, target, k=meta["k"], prepared=p,
                     body_points=np.asarray(fit.points, dtype=np.float64))
-        body, carry, _ = dress_output(reference, target, res.items)
-        write_character(obj, target, items=res.items, body=body, carry_plan=carry)
+        write_dressed(obj, reference, target, res)  # as `wearfit dress` with its defaults
         rows = dress_report(reference, target, res)
         figures = {"items": rows,
                    "new_penetration_pct": max((r["new_pen_pct"] for r in rows), default=0.0),

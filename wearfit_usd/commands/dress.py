@@ -5,8 +5,8 @@ from pathlib import Path
 
 from ..errors import InputError
 from .args import K_MAX, bounded_int, check_distinct, check_inputs, check_output, write_report
-from .output_options import add_carry_options, dress_output
-from .targets import add_target_options, load_target, output_items
+from .output_options import add_carry_options, write_dressed
+from .targets import add_target_options, load_target
 
 
 def register(sub, common):
@@ -49,7 +49,7 @@ def register(sub, common):
 
 def run(args) -> int:
     from ..dress.apply import dress
-    from ..io.usd import read_character, write_character
+    from ..io.usd import read_character
     from ..progress import info
 
     ref_path, tgt_path, out = Path(args.reference), Path(args.target), Path(args.output)
@@ -76,15 +76,9 @@ def run(args) -> int:
     res = dress(ref, target, k=args.k, use_regions=not args.no_regions, rigid=rigid,
                 penetration=not args.no_push_out, strict_far=args.strict,
                 push_inherited=args.fix_reference_penetrations, body_points=body_points)
-    body, plan, hidden = dress_output(ref, target, res.items, reference_inputs=args.reference_inputs,
-                                      delete_hidden_body=args.delete_hidden_body)
-    points, skinned = output_items(res, target, args.items)
-    if skinned:  # the skinned copies carry their items' materials and primvars too
-        from dataclasses import replace
-
-        from ..io.usd_carry import CarryPlan
-        plan = replace(plan, items={**CarryPlan.for_dress(ref, target, skinned).items, **plan.items})
-    write_character(out, target, items=points + skinned, body=body, carry_plan=plan, skinned_items=bool(skinned))
+    points, skinned, hidden = write_dressed(out, ref, target, res, args.items,
+                                            reference_inputs=args.reference_inputs,
+                                            delete_hidden_body=args.delete_hidden_body)
     t = res.timings
     if args.report:
         from ..dress.metrics import dress_report

@@ -33,3 +33,25 @@ def dress_output(reference, target, items, reference_inputs: bool = False, delet
     else:
         what = f"{len(subsets['hidden_under_items'])} body faces hidden under the items"
     return body, plan, what
+
+
+def write_dressed(out, reference, target, result, items: str = "both", reference_inputs: bool = False,
+                  delete_hidden_body: bool = False):
+    """Write a dressing ``result`` on ``target`` as `wearfit dress` does (and
+    `wearfit batch` with it): the body with its hidden subsets, the items as
+    ``items`` (points, skinned or both), the inputs' materials and primvars
+    carried onto each written mesh. Returns (point items, skinned items,
+    one-line summary of the hidden body)."""
+    from dataclasses import replace
+
+    from ..io.usd import write_character
+    from ..io.usd_carry import CarryPlan
+    from .targets import output_items
+    body, plan, hidden = dress_output(reference, target, result.items, reference_inputs=reference_inputs,
+                                      delete_hidden_body=delete_hidden_body)
+    points, skinned = output_items(result, target, items)
+    if skinned:  # the skinned copies carry their items' materials and primvars too
+        extra = CarryPlan.for_dress(reference, target, skinned, reference_inputs=reference_inputs).items
+        plan = replace(plan, items={**extra, **plan.items})
+    write_character(out, target, items=points + skinned, body=body, carry_plan=plan, skinned_items=bool(skinned))
+    return points, skinned, hidden

@@ -23,14 +23,13 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..geometry.closest import SurfaceQuery
+from ..model import SKINNED_SUFFIX  # noqa: F401 (re-exported: the skinned copies' names)
 from .binding import Binding
 
 MAX_INFLUENCES = 8
 #: a rigid group whose body patch has this share of one joint's weight is
 #: skinned to that joint alone
 ONE_JOINT_SHARE = 0.9
-#: name suffix of skinned item copies written beside their point copies
-SKINNED_SUFFIX = "_skinned"
 
 
 def binding_coefficients(binding: Binding, n_body: int) -> sp.csr_matrix:

@@ -14,13 +14,14 @@ half-written file.
 """
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import GeometryError, InputError, USDInputError, WriteError
 from ..geometry.body_parts import body_parts
-from ..model import Character, Mesh, Primvar, Skeleton, merge_meshes
+from ..model import Character, Mesh, Primvar, Skeleton, merge_meshes, without_skinned_copies
 from ..progress import info, warn
 from ..transforms import invert, stage_to_internal, transform_points
 from .atomic import atomic_output
@@ -318,6 +319,9 @@ def read_character(path, body_path: str | None = None, item_paths: list[str] | N
         lines = [ln.strip() for ln in str(exc).strip().splitlines() if ln.strip()]
         why = lines[-1].split(": '", 1)[-1].rstrip("'") if lines else type(exc).__name__
         raise USDInputError(path, f"cannot read (corrupt or truncated file?): {why}") from None
+    if item_paths is None:  # a `dress --items both` output: each item once
+        keep = without_skinned_copies([m.name for m in char.items])
+        char = dataclasses.replace(char, items=[m for m, k in zip(char.items, keep) if k])
     b = char.body.points
     ext = np.ptp(b, axis=0)
     if len(b) < 4 or not ext.min() > 1e-3 * ext.max():

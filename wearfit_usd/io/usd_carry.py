@@ -72,6 +72,12 @@ def is_geometric(name: str, points_changed: bool = True) -> bool:
     return points_changed and name in POINT_DEPENDENT
 
 
+def is_usd_file(path) -> bool:
+    """Whether ``path`` is a USD layer to carry from (a glTF, .obj or .ply
+    input has no USD prims: nothing to carry)."""
+    return Path(str(path)).suffix.lower() in (".usd", ".usda", ".usdc", ".usdz")
+
+
 @dataclass
 class CarrySource:
     """One written mesh's input: ``file`` and ``prim`` path in it.
@@ -104,7 +110,7 @@ class CarryPlan:
         the reference (a fitted body: moved points, as ``wearfit fit``)."""
         src = reference if body_from_reference else target
         body = None
-        if src is not None and src.body.path:
+        if src is not None and src.body.path and is_usd_file(src.source):
             body = CarrySource(str(src.source), src.body.path, points_changed=body_from_reference,
                                poly_keep=body_poly_keep)
         by_name = {m.name: m for m in reference.items} if reference is not None else {}
@@ -112,7 +118,7 @@ class CarryPlan:
         for m in items:
             srcm = by_name.get(m.name)
             path = (srcm.path if srcm is not None else m.path)
-            if path:
+            if path and is_usd_file(reference.source):
                 its[m.name] = CarrySource(str(reference.source), path, points_changed=True)
         return cls(body=body, items=its, reference_inputs=reference_inputs)
 

@@ -23,6 +23,7 @@ import numpy as np
 from ..errors import InputError, USDInputError
 from ..io.gltf import is_gltf, read_gltf_frames
 from ..io.usd_carry import HIDDEN_SUBSET
+from ..model import without_skinned_copies
 from ..transforms import stage_to_internal, transform_points
 from .lighting import BODY_COLOR, item_colors
 
@@ -248,6 +249,9 @@ def read_scene(path, frames=None, progress_desc: str | None = None) -> SceneDesc
         meshes.append(prim)
     if not meshes:
         raise USDInputError(path, "the stage holds no visible Mesh prims: nothing to render")
+    # `dress --items both` writes each item twice (points, and a skinned copy
+    # <item>_skinned in the same place): draw one
+    meshes = [prim for prim, keep in zip(meshes, without_skinned_copies([p.GetName() for p in meshes])) if keep]
 
     # skinned meshes through UsdSkel
     cache = UsdSkel.Cache()

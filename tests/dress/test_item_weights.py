@@ -1,0 +1,144 @@
+"""dress.item_weights: skin weights of dressed items from their K-triangle
+binding; `wearfit dress --items` and unrigged targets (--rig-from-reference)."""
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from tests.conftest import BVH_DIR, USD_DIR
+from wearfit_usd.dress.binding import bind
+from wearfit_usd.dress.item_weights import MAX_INFLUENCES, item_skin_weights, prune
+
+# a unit square of two triangles; each corner on one joint of four
+SQUARE = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]])
+SQUARE_FACES = np.array([[0, 1, 2], [0, 2, 3]])
+CORNER_JOINT = np.array([[0], [1], [2], [3]])
+ONE = np.ones((4, 1))
+
+
+def test_a_bound_vertex_takes_the_barycentric_blend_of_its_triangles_corners():
+    # 2 mm above the point 0.5 v0 + 0.2 v1 + 0.3 v2 of the first triangle
+    p = 0.5 * SQUARE[0] + 0.2 * SQUARE[1] + 0.3 * SQUARE[2] + [0.0, 0.0, 0.002]
+    b = bind(SQUARE, SQUARE_FACES, p[None], k=1)
+    ji, jw = item_skin_weights(b, CORNER_JOINT, ONE, 4)
+    dense = np.zeros(4)
+    dense[ji[0]] = jw[0]
+    np.testing.assert_allclose(dense, [0.5, 0.2, 0.3, 0.0], atol=1e-9)
+
+
+def test_weights_sum_to_one_with_at_most_eight_influences_strongest_first():
+    rng = np.random.default_rng(3)
+    w = rng.random((50, 20))
+    ji, jw = prune(w)
+    assert ji.shape == (50, MAX_INFLUENCES)
+    np.testing.assert_allclose(jw.sum(axis=1), 1.0)
+    assert (np.diff(jw, axis=1) <= 1e-12).all()
+    # the kept joints are the row's 8 largest
+    top = np.sort(np.argsort(-w, axis=1)[:, :8], axis=1)
+    assert (np.sort(ji, axis=1) == top).all()
+
+
+def test_a_rigid_group_over_one_joint_moves_with_that_joint_alone():
+    pts = np.array([[0.2, 0.1, 0.01], [0.8, 0.3, 0.01], [0.3, 0.8, 0.01]])
+    b = bind(SQUARE, SQUARE_FACES, pts, k=2)
+    # body patch: corners 0 and 1, 95 % of its weight on joint 0's corner
+    group = (np.arange(3), np.array([0, 1]), np.array([0.95, 0.05]))
+    ji, jw = item_skin_weights(b, CORNER_JOINT, ONE, 4, rigid_groups=[group])
+    assert (ji[:, 0] == 0).all() and np.allclose(jw[:, 0], 1.0)
+    # a patch shared by two joints: each vertex keeps the skin under it
+    shared = (np.arange(3), np.array([0, 1]), np.array([0.5, 0.5]))
+    ji2, jw2 = item_skin_weights(b, CORNER_JOINT, ONE, 4, rigid_groups=[shared])
+    free, free_w = item_skin_weights(b, CORNER_JOINT, ONE, 4)
+    assert (ji2 == free).all() and np.allclose(jw2, free_w)
+
+
+def _cli(*args):
+    return subprocess.run([sys.executable, "-m", "wearfit_usd", *map(str, args)], capture_output=True, text=True)
+
+
+def _tri(mesh):
+    from pxr import UsdGeom  # noqa: F401
+    cnt = np.array(mesh.GetFaceVertexCountsAttr().Get())
+    idx = np.array(mesh.GetFaceVertexIndicesAttr().Get())
+    start = np.concatenate([[0], np.cumsum(cnt)[:-1]])
+    out = [np.stack([idx[start[m]], idx[start[m] + j], idx[start[m] + j + 1]], 1)
+           for j in range(1, cnt.max() - 1) for m in [cnt > j + 1]]
+    return np.concatenate(out)
+
+
+@pytest.mark.slow
+def test_usdskel_skinned_items_follow_the_posed_body_like_the_per_frame_redress(tmp_path):
+    """The skinned copies of `dress --items both`, posed by UsdSkel itself with
+    a walk's joint transforms, have new penetrations within 1 percentage point
+    of the per-frame redress (`animate`) on the same frames."""
+    from pxr import Usd, UsdGeom, UsdSkel
+
+    from tests.usdskel_reference import author_animation, usdskel_skinned_points
+    from wearfit_usd.geometry.closest import SurfaceQuery
+    ref, tgt = USD_DIR / "ref_female.usda", USD_DIR / "body_female_thin.usdc"
+    shot, dressed = tmp_path / "shot.usdc", tmp_path / "dressed.usda"
+    r = _cli("animate", ref, tgt, BVH_DIR / "cmu_07_01_walk.bvh", "-o", shot, "--end", "60", "-q")
+    assert r.returncode == 0, r.stderr
+    r = _cli("dress", ref, tgt, "-o", dressed, "-q")
+    assert r.returncode == 0, r.stderr
+    frames = [0, 15, 30, 45, 59]
+    s_shot = Usd.Stage.Open(str(shot))
+    cache = UsdSkel.Cache()
+    root = next(p for p in s_shot.Traverse() if p.IsA(UsdSkel.Root))
+    cache.Populate(UsdSkel.Root(root), Usd.PrimDefaultPredicate)
+    sq = cache.GetSkelQuery(UsdSkel.Skeleton(next(p for p in s_shot.Traverse() if p.IsA(UsdSkel.Skeleton))))
+    local = np.array([np.array(sq.ComputeJointLocalTransforms(f)) for f in frames])
+    st = Usd.Stage.Open(str(dressed))
+    skel = next(p for p in st.Traverse() if p.IsA(UsdSkel.Skeleton))
+    author_animation(st, str(skel.GetPath()), local, list(sq.GetJointOrder()))
+    body_path = "/Root/Character/Body"
+    faces = _tri(UsdGeom.Mesh(st.GetPrimAtPath(body_path)))
+    q0 = SurfaceQuery(faces, np.array(UsdGeom.Mesh(st.GetPrimAtPath(body_path)).GetPointsAttr().Get(), float))
+    skinned = [p for p in st.Traverse() if p.IsA(UsdGeom.Mesh) and p.GetName().endswith("_skinned")]
+    assert len(skinned) == 4
+    bodies = [SurfaceQuery(faces, usdskel_skinned_points(st, body_path, k)) for k in range(len(frames))]
+    for prim in skinned:
+        name = prim.GetName()[:-len("_skinned")]
+        outside = q0.closest(np.array(UsdGeom.Mesh(prim).GetPointsAttr().Get(), float))["distance"] > 0
+        item = UsdGeom.Mesh(s_shot.GetPrimAtPath(f"/Root/Items/{name}"))
+        sk = max(100 * np.mean((q.closest(usdskel_skinned_points(st, str(prim.GetPath()), k))["distance"] < 0)
+                               & outside) for k, q in enumerate(bodies))
+        rd = max(100 * np.mean((q.closest(np.array(item.GetPointsAttr().Get(f), float))["distance"] < 0)
+                               & outside) for f, q in zip(frames, bodies))
+        assert sk <= rd + 1.0, (name, sk, rd)
+
+
+@pytest.mark.slow
+def test_a_scan_without_skeleton_is_rigged_and_dressed_in_one_command(tmp_path):
+    """A remeshed dev body with its skeleton stripped, as .obj: one `dress`
+    fits the reference onto it, carries the rig over, says so, and dresses
+    it; the fit covers the scan both ways (p99 <= 5 mm) and the items have no
+    new penetrations measured against the scan itself."""
+    import trimesh
+
+    from wearfit_usd.io.usd import read_character
+    src = read_character(USD_DIR / "body_female_heavy_remeshed.usdc")
+    scan = tmp_path / "scan.obj"
+    trimesh.Trimesh(src.body.points * 100.0, src.body.faces, process=False).export(scan)  # centimetres
+    out, rep = tmp_path / "dressed.usda", tmp_path / "rep.json"
+    r = _cli("dress", USD_DIR / "ref_female.usda", scan, "-o", out, "--report", rep)
+    assert r.returncode == 0, r.stderr
+    log = r.stdout + r.stderr
+    assert "0.01 m per unit" in log and "rigging it from" in log
+    m = re.search(r"fitted->target p99 ([\d.]+) mm, target->fitted p99 ([\d.]+) mm", log)
+    assert m and float(m.group(1)) <= 5.0 and float(m.group(2)) <= 5.0, log
+    rows = json.loads(rep.read_text())["items"]
+    assert max(r["new_pen_pct"] for r in rows) <= 0.1, rows
+    dressed = read_character(out)
+    assert dressed.skeleton is not None and dressed.skeleton.n_joints == read_character(
+        USD_DIR / "ref_female.usda").skeleton.n_joints
+    assert sorted(m.name for m in dressed.items) == sorted(r["item"] for r in rows)
+    # without a skeleton and with --no-rig-from-reference: a clear refusal
+    r = _cli("dress", USD_DIR / "ref_female.usda", scan, "-o", tmp_path / "x.usda", "--no-rig-from-reference")
+    assert r.returncode != 0 and "no skeleton" in r.stderr and "Traceback" not in r.stderr
+    assert not (tmp_path / "x.usda").exists()
