@@ -138,7 +138,32 @@ def test_a_scan_without_skeleton_is_rigged_and_dressed_in_one_command(tmp_path):
     assert dressed.skeleton is not None and dressed.skeleton.n_joints == read_character(
         USD_DIR / "ref_female.usda").skeleton.n_joints
     assert sorted(m.name for m in dressed.items) == sorted(r["item"] for r in rows)
+    # animated by one command too, items measured against the scan
+    shot = tmp_path / "walk.usdc"
+    r = _cli("animate", USD_DIR / "ref_female.usda", scan, BVH_DIR / "cmu_07_01_walk.bvh", "-o", shot,
+             "--end", "30", "-q")
+    assert r.returncode == 0, r.stderr
+    from pxr import Usd, UsdGeom
+    st = Usd.Stage.Open(str(shot))
+    suit = UsdGeom.Mesh(st.GetPrimAtPath("/Root/Items/female_casualsuit01")).GetPointsAttr()
+    assert len(suit.GetTimeSamples()) >= 7
     # without a skeleton and with --no-rig-from-reference: a clear refusal
     r = _cli("dress", USD_DIR / "ref_female.usda", scan, "-o", tmp_path / "x.usda", "--no-rig-from-reference")
     assert r.returncode != 0 and "no skeleton" in r.stderr and "Traceback" not in r.stderr
     assert not (tmp_path / "x.usda").exists()
+
+
+def test_regions_of_a_rig_carried_onto_a_scan_are_those_of_the_reference():
+    """A fit leaves the carried skeleton's root a fraction of a millimetre off
+    the midline: it must not count as one side's lowest joint (that made the
+    whole scan one leg, and animating it failed in the binding)."""
+    from wearfit_usd.dress.regions import joint_regions
+    from wearfit_usd.fit.rig import fitted_skeleton
+    from wearfit_usd.io.usd import read_character
+    skel = read_character(USD_DIR / "ref_female.usda").skeleton
+    moved = np.array(skel.bind_world, dtype=np.float64).copy()
+    moved[:, 3, 0] += 0.0003
+    carried = fitted_skeleton(skel, moved)
+    want = joint_regions(skel)
+    assert len(set(want.tolist())) == 6
+    assert (joint_regions(carried) == want).all()

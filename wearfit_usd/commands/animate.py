@@ -15,6 +15,7 @@ from .args import (
     write_report,
 )
 from .output_options import add_carry_options
+from .targets import add_target_options, load_target
 
 
 def register(sub, common):
@@ -78,6 +79,7 @@ def register(sub, common):
                    help="measure every Nth frame (and the last); default 1 with --report or --strict, "
                         "else no measuring")
     add_carry_options(p)
+    add_target_options(p, items_default=None)
     p.set_defaults(func=run)
     return p
 
@@ -97,7 +99,7 @@ def run(args) -> int:
         check_output(args.report, inputs, suffixes=(), what="--report")
         check_distinct({"-o": args.output, "--report": args.report})
     reference = read_character(args.reference)
-    target = read_character(args.target)
+    target, _ = load_target(reference, args.target, args.rig_from_reference, pose_align=not args.no_pose)
     motion = read_bvh(args.clip, scale=args.bvh_scale)
     mapping = None
     if args.mapping:

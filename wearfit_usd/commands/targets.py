@@ -9,13 +9,16 @@ import argparse
 ITEM_MODES = ("points", "skinned", "both")
 
 
-def add_target_options(p, items_default: str) -> None:
-    """``--rig-from-reference`` and ``--items`` on a command's parser."""
+def add_target_options(p, items_default: str | None) -> None:
+    """``--rig-from-reference`` and (with ``items_default``) ``--items`` on a
+    command's parser."""
     p.add_argument("--rig-from-reference", action=argparse.BooleanOptionalAction, default=None,
                    help="fit the reference body onto the target and carry its skeleton and skin weights "
                         "over, so an unrigged target (a scan: USD mesh without skin, .obj, .ply) is rigged "
                         "and dressed in one step (default: on when the target has no skeleton); "
                         "everything is then measured against the target's own mesh")
+    if items_default is None:
+        return
     p.add_argument("--items", choices=ITEM_MODES, default=items_default,
                    help="how items are written: 'points' (plain meshes under /Root/Items), 'skinned' "
                         "(meshes bound to the target skeleton inside the SkelRoot, weights from the "

@@ -68,7 +68,11 @@ def joint_regions(skeleton) -> np.ndarray:
     if j < 5:
         return labels
     x, y = pos[:, 0], pos[:, 1]
-    left, right = x > 1e-4, x < -1e-4
+    # sides: off the midline by 1 % of the skeleton's height (a rig carried
+    # onto a scan by a fit has its root a fraction of a millimetre off x = 0,
+    # and a root counted as a side's lowest joint made the whole body a leg)
+    mid = max(1e-4, 0.01 * float(np.ptp(y)))
+    left, right = x > mid, x < -mid
     if not left.any() or not right.any():
         return labels
     lfoot = int(np.flatnonzero(left)[np.argmin(y[left])])
