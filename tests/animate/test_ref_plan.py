@@ -11,6 +11,7 @@ import pytest
 import scipy.sparse as sp
 
 from tests.conftest import BVH_DIR, USD_DIR
+from tests.usd_values import usd_points as shot_points
 from wearfit_usd.animate.try_on import AnimateOptions, animate
 from wearfit_usd.dress.plan import plan
 from wearfit_usd.io.bvh import read_bvh
@@ -56,22 +57,6 @@ def fingerprint(obj, where: str = "plan", out: dict | None = None, seen: set | N
             continue
         if not callable(v) or isinstance(v, np.ndarray) or sp.issparse(v) or hasattr(v, "__dict__"):
             fingerprint(v, f"{where}.{k}", out, seen)
-    return out
-
-
-def shot_points(path) -> dict:
-    """Every point array of a shot at every time sample, as bytes."""
-    from pxr import Usd
-    stage = Usd.Stage.Open(str(path))
-    out = {}
-    for prim in stage.Traverse():
-        for attr in prim.GetAttributes():
-            if "GfVec3f" not in attr.GetTypeName().cppTypeName:
-                continue
-            for t in attr.GetTimeSamples() or [Usd.TimeCode.Default()]:
-                v = attr.Get(t)
-                if v is not None:
-                    out[str(prim.GetPath()), attr.GetName(), str(t)] = np.asarray(v).tobytes()
     return out
 
 

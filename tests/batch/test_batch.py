@@ -10,10 +10,10 @@ import subprocess
 import sys
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from tests.conftest import BVH_DIR, REPO, USD_DIR
+from tests.usd_values import usd_points
 from wearfit_usd.batch.cache import Cache, file_digest, result_key
 from wearfit_usd.batch.graph import assign_owners
 from wearfit_usd.batch.jobs import Clip, Job, load_jobs
@@ -170,22 +170,6 @@ def test_plan_workers_must_be_positive(tmp_path, capsys):
 
 
 # ---------------------------------------------------------------- real runs
-
-
-def usd_points(path) -> dict:
-    """Every point-array value of a stage at every time sample, as bytes."""
-    from pxr import Usd
-    stage = Usd.Stage.Open(str(path))
-    out = {}
-    for prim in stage.Traverse():
-        for attr in prim.GetAttributes():
-            if "GfVec3f" not in attr.GetTypeName().cppTypeName:
-                continue
-            for t in attr.GetTimeSamples() or [Usd.TimeCode.Default()]:
-                v = attr.Get(t)
-                if v is not None:
-                    out[str(prim.GetPath()), attr.GetName(), str(t)] = np.asarray(v).tobytes()
-    return out
 
 
 def _job_file(folder: Path) -> Path:
