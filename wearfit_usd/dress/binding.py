@@ -349,6 +349,45 @@ def _assemble(body: np.ndarray, faces: np.ndarray, q: np.ndarray, tri_idx: np.nd
     return Binding(matrix=mat, faces=faces, triangles=tri_idx, weights=w, local=local, used=used, rest=rest)
 
 
+def blend_rows(binding: Binding, body_points: np.ndarray, item_points: np.ndarray, rows: np.ndarray,
+               second: Binding, share: np.ndarray) -> Binding:
+    """``binding`` with the vertices ``rows`` bound partly by ``second``.
+
+    Row ``rows[i]`` becomes ``(1 - share[i]) x`` its own triangles and
+    weights plus ``share[i] x`` those of row ``i`` of ``second`` (a binding
+    of ``item_points[rows]`` to other triangles of the same body): a vertex
+    on the line between two body regions follows both (:mod:`dress.seams`).
+    Both bindings reproduce the vertex on ``body_points``, so the blend does.
+
+    Parameters
+    ----------
+    binding : Binding of M item vertices; body_points (N, 3) and
+        item_points (M, 3) it was built on.
+    rows : (R,) int; second : Binding of the R vertices ``item_points[rows]``;
+        share : (R,) float in [0, 1].
+
+    Returns
+    -------
+    Binding with k = ``binding.k + second.k`` triangles per row (rows not
+    blended: weight-0 repeats of their last triangle).
+    """
+    rows = np.asarray(rows, dtype=np.int64)
+    share = np.asarray(share, dtype=np.float64)
+    if len(rows) == 0:
+        return binding
+    if len(rows) != second.n_items or len(share) != len(rows):
+        raise ValueError(f"blend_rows: {len(rows)} rows, {second.n_items} second rows, {len(share)} shares")
+    k1, k2 = binding.triangles.shape[1], second.triangles.shape[1]
+    tri = np.concatenate([binding.triangles, np.repeat(binding.triangles[:, -1:], k2, axis=1)], axis=1)
+    w = np.concatenate([binding.weights, np.zeros((binding.n_items, k2))], axis=1)
+    tri[rows, k1:] = second.triangles
+    w[rows, :k1] *= (1.0 - share)[:, None]
+    w[rows, k1:] = share[:, None] * second.weights
+    body = np.asarray(body_points, dtype=np.float64)
+    e1, e2, nrm, _ = triangle_frames(body, binding.faces)
+    return _assemble(body, binding.faces, np.asarray(item_points, dtype=np.float64), tri, w, e1, e2, nrm)
+
+
 def rebind(binding: Binding, body_points: np.ndarray, item_points: np.ndarray) -> Binding:
     """``binding``'s triangles and blend weights, with item points (M, 3)
     stored where they are now on body points (N, 3) of the same topology.

@@ -32,12 +32,15 @@ from ..geometry.mesh import adjacency, components, edges, nondegenerate
 from ..model import Character, Mesh
 from ..progress import warn
 from . import regions as R
-from .binding import Binding, bind, rebind
+from .binding import Binding, bind, blend_rows, rebind
 from .corrections import LooseSmoother, looseness
 from .layers import layer_gaps, layer_order
 from .rigid_parts import RigidParts
+from .seams import SEAM_BAND, seam_shares
 
 SKIRT_K = 60  # hip triangles each skirt-part vertex is bound to (see bind_items)
+SKIRT_TOP = 0.18  # m above the crotch: the parts of a skirt-like item above this (a bodice, a jacket) bind to the
+                  # torso (animate.loose's attachment band ends at the same height)
 FAR_FROM_BODY = 0.5  # m: items farther than this from the body are suspicious
 DEGENERATE_BODY_REL = 1e-10  # body triangles below this x the median doubled area are not bound to
 
@@ -179,8 +182,9 @@ class DressPlan:
 def item_labels(ref_body: Mesh, body_labels: np.ndarray, tri_labels: np.ndarray, items: list[Mesh], points: np.ndarray,
                 offsets: np.ndarray, centroid_tree: cKDTree):
     """Region per item vertex (of its nearest triangle), with skirt-like item
-    parts (item edges joining a left-leg vertex to a right-leg vertex) moved
-    to the torso. Returns (labels (M,), names of items treated as skirts)."""
+    parts (item edges joining a left-leg vertex to a right-leg vertex; below
+    ``SKIRT_TOP`` above the crotch) moved to the hips (HIPS). Returns
+    (labels (M,), names of items treated as skirts)."""
     _, near = centroid_tree.query(points, k=1)
     labels = tri_labels[near].copy()
     torso = body_labels == R.TORSO
@@ -203,8 +207,15 @@ def item_labels(ref_body: Mesh, body_labels: np.ndarray, tri_labels: np.ndarray,
         bridged = np.flatnonzero(n_cross >= 3)
         if len(bridged) == 0:
             continue
-        sel = np.isin(comp, bridged) & ((lab == R.LEFT_LEG) | (lab == R.RIGHT_LEG) | (lab == R.TORSO))
+        # the skirt part only: a dress's bodice or a suit's jacket above the
+        # hips is bound to the torso like any top (bound to the hips, with
+        # SKIRT_K triangles and smoothed as a skirt, its shoulders stayed
+        # behind when the arms went up)
+        low = points[a:b, 1] < crotch_y + SKIRT_TOP
+        legs = (lab == R.LEFT_LEG) | (lab == R.RIGHT_LEG)
+        sel = np.isin(comp, bridged) & low & (legs | (lab == R.TORSO))
         lab[sel] = R.HIPS
+        lab[np.isin(comp, bridged) & ~low & legs] = R.TORSO  # the sides of the hips above it
         labels[a:b] = lab
         skirts.append(item.name)
     return labels, skirts
@@ -307,7 +318,8 @@ def body_regions(ref: Character, use_regions: bool) -> BodyRegions:
 
 
 def bind_items(body: Mesh, points: np.ndarray, labels: np.ndarray, regions: BodyRegions,
-               degenerate: np.ndarray, k: int) -> Binding:
+               degenerate: np.ndarray, k: int, item_edges: np.ndarray | None = None,
+               seam_band: float = SEAM_BAND) -> Binding:
     """Bind item points to the ``k`` nearest non-degenerate body triangles of
     their region.
 
@@ -322,6 +334,12 @@ def bind_items(body: Mesh, points: np.ndarray, labels: np.ndarray, regions: Body
     split the skirt open at the back and pulled its hem into points. Blended
     over a wide patch, the hem follows the hips' overall shape.
 
+    Across the line where an item passes from one region to another (a
+    sleeve sewn to a jacket, a collar, trousers at the waist) the vertices
+    within ``seam_band`` along the item follow both regions, blended
+    (:mod:`seams`): bound to one region each, the two sides of the line
+    tore apart when the limb moved.
+
     Parameters
     ----------
     body : Mesh
@@ -332,6 +350,10 @@ def bind_items(body: Mesh, points: np.ndarray, labels: np.ndarray, regions: Body
     regions : BodyRegions
     degenerate : (T,) bool array
     k : int
+    item_edges : (E, 2) int array, optional
+        The items' edges (stacked indices); without them nothing is blended.
+    seam_band : float
+        m along the item (0: no blending).
 
     Returns
     -------
@@ -345,7 +367,20 @@ def bind_items(body: Mesh, points: np.ndarray, labels: np.ndarray, regions: Body
     allowed[np.arange(len(points)), np.where(labels == R.HIPS, R.HIPS, labels)] = True
     allowed[:, R.HIPS] |= labels == R.TORSO
     k_rows = np.where(labels == R.HIPS, max(int(k), SKIRT_K), int(k))
-    return bind(body.points, body.faces, points, k=k_rows, candidate_mask=(mask_labels, allowed))
+    binding = bind(body.points, body.faces, points, k=k_rows, candidate_mask=(mask_labels, allowed))
+    if item_edges is None or seam_band <= 0:
+        return binding
+    other, share = seam_shares(points, item_edges, labels, seam_band)
+    rows = np.flatnonzero(other >= 0)
+    if len(rows) == 0:
+        return binding
+    lab2 = other[rows]
+    allowed2 = np.zeros((len(rows), R.N_REGIONS + 1), dtype=bool)
+    allowed2[np.arange(len(rows)), lab2] = True
+    allowed2[:, R.HIPS] |= lab2 == R.TORSO
+    second = bind(body.points, body.faces, points[rows], k=np.where(lab2 == R.HIPS, max(int(k), SKIRT_K), int(k)),
+                  candidate_mask=(mask_labels, allowed2))
+    return blend_rows(binding, body.points, points, rows, second, share[rows])
 
 
 def reference_clearance(ref: Character, query: SurfaceQuery, items: list[Mesh], offsets: np.ndarray,
@@ -469,9 +504,13 @@ def _group_items(groups: list, items: list[Mesh], offsets: np.ndarray) -> list[s
 
 
 def loose_weights(items: list[Mesh], offsets: np.ndarray, skirts: list, clearance: np.ndarray,
-                  groups: list) -> np.ndarray:
+                  groups: list, labels: np.ndarray | None = None) -> np.ndarray:
     """How much each vertex's displacement is smoothed (:func:`corrections.looseness`):
-    skirt items entirely, rigid parts not at all (they move as a whole already).
+    the skirt parts of skirt items entirely (with ``labels``: the vertices
+    bound to the hips; the sleeves of a one-piece suit turn with the arms,
+    and a smoothed displacement of a turning part shrinks it: raised, the
+    sleeves sank into the arms), rigid parts not at all (they move as a
+    whole already).
 
     Parameters
     ----------
@@ -481,6 +520,8 @@ def loose_weights(items: list[Mesh], offsets: np.ndarray, skirts: list, clearanc
     clearance : (M,) float array
     groups : list
         Rigid groups.
+    labels : (M,) int array, optional
+        Binding labels (:mod:`regions`; HIPS: skirt parts).
 
     Returns
     -------
@@ -490,7 +531,7 @@ def loose_weights(items: list[Mesh], offsets: np.ndarray, skirts: list, clearanc
     skirt_mask = np.zeros(len(clearance), dtype=bool)
     for item, a, b in zip(items, offsets[:-1], offsets[1:]):
         if item.name in skirts:
-            skirt_mask[a:b] = True
+            skirt_mask[a:b] = True if labels is None else labels[a:b] == R.HIPS
     loose = looseness(clearance, skirt_mask)
     for gv, _, _ in groups:
         loose[gv] = 0.0
@@ -499,7 +540,7 @@ def loose_weights(items: list[Mesh], offsets: np.ndarray, skirts: list, clearanc
 
 def plan(ref: Character, k: int = 5, use_regions: bool = True, rigid="auto", auto_rigid: AutoRigid | None = None,
          far: float = FAR_FROM_BODY, strict_far: bool = False, regions: ItemRegions | None = None,
-         ref_clearance: np.ndarray | None = None, free_items=()) -> DressPlan:
+         ref_clearance: np.ndarray | None = None, free_items=(), seam_band: float = SEAM_BAND) -> DressPlan:
     """Bind every item of ``ref`` to its body (done once per reference).
 
     Parameters
@@ -535,6 +576,10 @@ def plan(ref: Character, k: int = 5, use_regions: bool = True, rigid="auto", aut
         body, :func:`repair.release_misfits`: bound freely, they deform with
         the body under them; a shoe fitted to a body's bending low-poly foot
         follows that foot, where a rigid one comes off it at the toes).
+    seam_band : float
+        m: where an item crosses from one body region to another, the band
+        along it that follows both (:func:`bind_items`); 0 binds every
+        vertex within its own region only.
 
     Returns
     -------
@@ -554,13 +599,14 @@ def plan(ref: Character, k: int = 5, use_regions: bool = True, rigid="auto", aut
             raise ValueError(f"the given regions have {len(regions.bind)} entries for {len(pts)} item vertices")
         labels, skirts = np.asarray(regions.bind).copy(), list(regions.skirt_items)
     t1 = time.perf_counter()
-    binding = bind_items(body, pts, labels, body_reg, degenerate, k)
+    mesh = stacked_mesh(items, offsets)
+    binding = bind_items(body, pts, labels, body_reg, degenerate, k, item_edges=mesh.edges,
+                         seam_band=seam_band if use_regions else 0.0)
     t2 = time.perf_counter()
     ref_query = SurfaceQuery(body.faces, body.points)
     ref_clear, foot = reference_clearance(ref, ref_query, items, offsets, pts, ref_clearance, far, strict_far)
     item_regions = ItemRegions(vertex=np.where(labels == R.HIPS, R.TORSO, labels), bind=labels,
                                triangle=body_reg.triangle, body=body_reg.vertex, skirt_items=skirts)
-    mesh = stacked_mesh(items, offsets)
     rigid_groups, rigid_items = find_rigid_groups(items, offsets, item_regions.vertex, ref_clear, binding, body,
                                                   rigid, auto_rigid or AutoRigid())
     if free_items:
@@ -568,7 +614,7 @@ def plan(ref: Character, k: int = 5, use_regions: bool = True, rigid="auto", aut
                 if item not in free_items]
         rigid_groups = [g for g, _ in keep]
         rigid_items = [n for n in rigid_items if n not in free_items]
-    loose = loose_weights(items, offsets, skirts, ref_clear, rigid_groups)
+    loose = loose_weights(items, offsets, skirts, ref_clear, rigid_groups, labels)
     t3 = time.perf_counter()
     order = [(i, j, g) for i, j, g in layer_order(items, offsets, pts, ref_clear)
              if items[i].name not in rigid_items]  # rigid parts move as a whole
