@@ -41,6 +41,7 @@ from .seams import SEAM_BAND, seam_shares
 SKIRT_K = 60  # hip triangles each skirt-part vertex is bound to (see bind_items)
 SKIRT_TOP = 0.18  # m above the crotch: the parts of a skirt-like item above this (a bodice, a jacket) bind to the
                   # torso (animate.loose's attachment band ends at the same height)
+TOP_ABOVE = 0.15  # m above that an item must reach to have a top (a bodice, a jacket), not just a waistband
 FAR_FROM_BODY = 0.5  # m: items farther than this from the body are suspicious
 DEGENERATE_BODY_REL = 1e-10  # body triangles below this x the median doubled area are not bound to
 
@@ -211,7 +212,11 @@ def item_labels(ref_body: Mesh, body_labels: np.ndarray, tri_labels: np.ndarray,
         # hips is bound to the torso like any top (bound to the hips, with
         # SKIRT_K triangles and smoothed as a skirt, its shoulders stayed
         # behind when the arms went up)
-        low = points[a:b, 1] < crotch_y + SKIRT_TOP
+        # (a skirt alone, its waistband included, stays on the hips)
+        top = np.zeros(comp.max() + 1)
+        np.maximum.at(top, comp, points[a:b, 1])
+        has_top = top[comp] > crotch_y + SKIRT_TOP + TOP_ABOVE
+        low = ~has_top | (points[a:b, 1] < crotch_y + SKIRT_TOP)
         legs = (lab == R.LEFT_LEG) | (lab == R.RIGHT_LEG)
         sel = np.isin(comp, bridged) & low & (legs | (lab == R.TORSO))
         lab[sel] = R.HIPS
