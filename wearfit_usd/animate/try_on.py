@@ -31,6 +31,7 @@ import numpy as np
 from ..dress.apply import apply as apply_plan
 from ..dress.apply import dress
 from ..dress.hidden_body import SHOT_DEPTH, SHOT_MAX_GAP, hide_or_drop
+from ..dress.item_weights import SKINNED_SUFFIX, skinned_items
 from ..dress.metrics import item_rigid_groups
 from ..dress.plan import DressPlan
 from ..dress.plan import plan as plan_dress
@@ -61,7 +62,8 @@ class AnimateOptions:
     mapping: dict | None = None       # user joint map {target: source}
     clip_frames: int | None = None    # value-clip chunk size (None = auto)
     velocities: bool = False
-    write_skinned_items: bool = False  # lbs mode: also write skinned item meshes
+    write_skinned_items: bool = False  # old name of items="both" (kept for callers)
+    items: str = "points"              # "points" (point caches), "skinned" (bound to the skeleton) or "both"
     penetration_margin: float = 0.001  # metres
     dress_pose: str = "first"          # "first": dress in frame 0's pose; "bind": on the bind pose
     measure_every: int = 0             # exact penetration statistics every N frames (0 = off)
@@ -89,6 +91,7 @@ class AnimateReport:
     motion_series: dict = field(default_factory=dict)   # {item: {measure: [value per measured frame]}}
     motion_worst: dict = field(default_factory=dict)    # {item: {measure: {"value", "frame"}}}
     cloth_vertices: int = 0  # item vertices simulated as cloth
+    skinned_items: list = field(default_factory=list)  # names of the items written bound to the skeleton
 
     def as_dict(self) -> dict:
         return {"frames": self.frames, "fps": self.fps, "timings_s": self.timings,
@@ -96,7 +99,7 @@ class AnimateReport:
                 "per_frame_new_penetration_pct": [round(100 * x, 4) for x in self.per_frame_penetration],
                 "motion_worst": self.motion_worst, "measured_frames": self.measured_frames,
                 "motion_per_frame": self.motion_series,
-                "cloth_vertices": self.cloth_vertices,
+                "cloth_vertices": self.cloth_vertices, "skinned_items": self.skinned_items,
                 "mapping": self.mapping}
 
 
@@ -240,14 +243,23 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
         measures = _motion_measures(target, bind_dressed, ref_plan)
         rep.timings["measure_setup"] = time.perf_counter() - t0
 
+    items_mode = "both" if (opt.write_skinned_items and opt.items == "points") else opt.items
+    if items_mode not in ("points", "skinned", "both"):
+        raise ValueError(f"items: expected points, skinned or both, got {items_mode!r}")
+    skinned = None
+    if items_mode != "points":
+        skinned = _skinned_copies(reference, target, dressed, opt, ref_plan, bind_dressed, items_for_skin,
+                                  SKINNED_SUFFIX if items_mode == "both" else "")
+        rep.skinned_items = [m.name for m in skinned]
+    written_items = items if items_mode != "skinned" else []
+
     clip_frames = opt.clip_frames
     if clip_frames is None and n_frames > 2000:
         clip_frames = 500
     t_lbs = t_eval = t_pen = t_write = t_measure = 0.0
     written, carry_plan = _hidden_body(target, base_body, items, opt)
-    with ShotWriter(out_path, written, items, fps=rt.fps, n_frames=n_frames, clip_frames=clip_frames,
-                    velocities=opt.velocities, carry_plan=carry_plan,
-                    skinned_items=items_for_skin if (opt.mode == "lbs" and opt.write_skinned_items) else None) as w:
+    with ShotWriter(out_path, written, written_items, fps=rt.fps, n_frames=n_frames, clip_frames=clip_frames,
+                    velocities=opt.velocities, carry_plan=carry_plan, skinned_items=skinned) as w:
         def write_block(a, block):
             nonlocal t_write
             tw = time.perf_counter()
@@ -278,7 +290,7 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
                 tm = time.perf_counter()
                 t_measure += tm - td
                 td = tm
-            w.write_frame(f, [pts[offsets[i]:offsets[i + 1]] for i in range(len(items))])
+            w.write_frame(f, [pts[offsets[i]:offsets[i + 1]] for i in range(len(written_items))])
             te = time.perf_counter()
             t_lbs += tb - ta
             t_eval += tc - tb
@@ -312,6 +324,27 @@ def _hidden_body(target: Character, base_body, items, opt: AnimateOptions):
     info(f"hidden body: {len(subsets.get('hidden_under_items', [])) if keep is None else int((~keep).sum())} "
          f"faces {'deleted' if keep is not None else 'named hidden_under_items'}")
     return replace(target, body=body), plan.with_hidden(subsets, keep)
+
+
+def _skinned_copies(reference: Character, target: Character, dressed, opt: AnimateOptions, ref_plan,
+                    bind_dressed, lbs_items: list, suffix: str) -> list:
+    """The items as meshes bound to the target's skeleton, in its bind pose
+    (the shot's SkelAnimation poses them through UsdSkel): in ``lbs`` mode
+    with the weights the shot's items are skinned with, else the items
+    dressed statically on the bind pose with the weights of their binding
+    (:func:`dress.item_weights.skinned_items`, as `wearfit dress --items`
+    writes them). ``suffix`` is appended to their names."""
+    if opt.mode == "lbs":
+        out = []
+        for m in lbs_items:
+            c = m.copy_with_points(m.points)
+            c.name = f"{m.name}{suffix}"
+            c.joint_indices, c.joint_weights = m.joint_indices, m.joint_weights
+            out.append(c)
+        return out
+    if bind_dressed is None:
+        bind_dressed = _bind_dress(reference, target, dressed, opt, ref_plan)
+    return skinned_items(bind_dressed, target, suffix=suffix)
 
 
 def _bind_dress(reference: Character, target: Character, dressed, opt: AnimateOptions, ref_plan):

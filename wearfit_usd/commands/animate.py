@@ -62,7 +62,7 @@ def register(sub, common):
                         "from their attachment, the body as collider (default: on when the items have loose parts; "
                         "bind mode only)")
     p.add_argument("--write-skinned-items", action="store_true",
-                   help="with --mode lbs: also write the items as skinned meshes (for engines without point caches)")
+                   help="the same as --items both (its older name)")
     p.add_argument("--velocities", action="store_true", help="author point velocities (units per second)")
     p.add_argument("--clip-frames", type=bounded_int(1), default=None,
                    help="write item samples as USD value clips of N frames (default: automatic for long shots)")
@@ -79,9 +79,31 @@ def register(sub, common):
                    help="measure every Nth frame (and the last); default 1 with --report or --strict, "
                         "else no measuring")
     add_carry_options(p)
-    add_target_options(p, items_default=None)
+    add_target_options(p, items_default="points")
     p.set_defaults(func=run)
     return p
+
+
+def _carry_plan(reference, target, args):
+    """What the inputs carry onto the shot's meshes: the items, and with
+    ``--items skinned|both`` their skinned copies (named as the shot names
+    them) too."""
+    from dataclasses import replace
+
+    from ..io.usd_carry import CarryPlan
+    from ..model import SKINNED_SUFFIX
+    plan = CarryPlan.for_dress(reference, target, reference.items, reference_inputs=args.reference_inputs)
+    mode = "both" if args.write_skinned_items and args.items == "points" else args.items
+    if mode == "points":
+        return plan
+    suffix = SKINNED_SUFFIX if mode == "both" else ""
+    copies = []
+    for m in reference.items:
+        c = m.copy_with_points(m.points)
+        c.name = f"{m.name}{suffix}"
+        copies.append(c)
+    extra = CarryPlan.for_dress(reference, target, copies, reference_inputs=args.reference_inputs).items
+    return replace(plan, items={**extra, **plan.items})
 
 
 def run(args) -> int:
@@ -89,7 +111,6 @@ def run(args) -> int:
     from ..animate.try_on import AnimateOptions, animate
     from ..io.bvh import read_bvh
     from ..io.usd import read_character
-    from ..io.usd_carry import CarryPlan
     from ..progress import info
     fps = args.fps
     check_inputs(args.reference, args.target, args.clip, args.mapping)
@@ -115,12 +136,12 @@ def run(args) -> int:
         raise InputError(None, "--strict needs measuring: --measure-every 0 turns it off")
     opts = AnimateOptions(k=args.k, start=args.start, end=args.end, fps=fps, mode=args.mode,
                           mapping=mapping, clip_frames=args.clip_frames, velocities=args.velocities,
-                          write_skinned_items=args.write_skinned_items, dress_pose=args.dress_pose,
+                          items="both" if args.write_skinned_items and args.items == "points" else args.items,
+                          dress_pose=args.dress_pose,
                           untangle=args.untangle, measure_every=every, floor=args.floor,
                           pose_align=not args.no_pose, cloth=args.cloth,
                           max_frames=args.max_frames,
-                          carry_plan=CarryPlan.for_dress(reference, target, reference.items,
-                                                         reference_inputs=args.reference_inputs),
+                          carry_plan=_carry_plan(reference, target, args),
                           hidden_body="delete" if args.delete_hidden_body else "subset")
     rep = animate(reference, target, motion, args.output, opts)
     t = rep.timings
