@@ -8,62 +8,19 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tests.conftest import DATA  # the data card's folder beside the checkout
 from wearfit_usd.errors import InputError
 from wearfit_usd.io.bvh import read_bvh
 from wearfit_usd.io.bvh_units import choose_unit, position_mode, standing_height
-from wearfit_usd.motion.floor import lowest_points, place_on_floor
-from wearfit_usd.motion.retarget import match_clip, retarget
-from wearfit_usd.motion.rig_match import KEY_ROLES, find_roles
+from wearfit_usd.motion.clip_check import LIMITS, clip_on_body, within_limits
+from wearfit_usd.motion.floor import place_on_floor
+from wearfit_usd.motion.retarget import retarget
+from wearfit_usd.motion.rig_match import KEY_ROLES
 
-DATA = Path("/work/shared/data")
 THIRD = DATA / "thirdparty"
 CLIPS = sorted((DATA / "bvh").glob("*.bvh")) + sorted((THIRD / "bvh").glob("*.bvh"))
 BODIES = {"ref_male": DATA / "usd" / "ref_male.usda", "ref_female": DATA / "usd" / "ref_female.usda",
           "mannequin": THIRD / "bodies" / "mannequiny_idle_blender.usdc"}
-
-
-def _leg_length(names, parents, pos):  # independent of retarget: roles from find_roles
-    r = find_roles(names, parents, pos).roles
-    out = []
-    for s in "lr":
-        a, b, c = (r[f"{k}_{s}"] for k in ("thigh", "shin", "foot"))
-        out.append(np.linalg.norm(pos[b] - pos[a]) + np.linalg.norm(pos[c] - pos[b]))
-    return float(np.mean(out))
-
-
-def clip_on_body(clip: Path, char, max_eval: int = 40) -> dict:
-    """Floor and travel figures of ``clip`` retargeted onto ``char``."""
-    motion = read_bvh(clip)
-    rot_cols = [motion.channel_start[j] + k for j, c in enumerate(motion.channels)
-                for k, name in enumerate(c) if name.endswith("rotation")]
-    # CMU/Daz conversions start with the converter's rest frame (all rotations zero): skip it
-    start = 1 if motion.n_frames > 1 and np.allclose(motion.values[0, rot_cols], 0, atol=1e-3) else 0
-    sk = char.skeleton
-    match = match_clip(motion, sk)
-    rt = retarget(motion, sk, start=start, fps=30)
-    rt, shift = place_on_floor(rt, sk, char.body, "auto")
-    body = char.body
-    floor = float(body.points[:, 1].min())
-    frames = np.unique(np.linspace(0, rt.n_frames - 1, min(max_eval, rt.n_frames)).astype(int))
-    low = lowest_points(body.points, body.joint_indices, body.joint_weights, sk.bind_world, rt.world,
-                        frames)
-    # travel: the target hips vs the clip's hips scaled by the leg lengths
-    sh = match.source.roles["hips"]
-    th = match.target.roles["hips"]
-    # horizontal path length over the evaluated frames (clips may walk in loops)
-    src_frames = np.round(rt.source_frames[frames]).astype(int)
-    gpos = motion.global_positions(src_frames)[:, sh][:, [0, 2]]
-    clip_travel = float(np.linalg.norm(np.diff(gpos, axis=0), axis=1).sum())
-    srest = motion.rest_global_transforms()[:, 3, :3]
-    scale = _leg_length(sk.joint_names, sk.parents, sk.bind_positions()) / _leg_length(
-        motion.joint_names, motion.parents, srest)
-    p = rt.positions()[frames][:, th][:, [0, 2]]
-    travel = float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum())
-    return {"frame0_cm": 100 * (low[0] - floor), "median_cm": 100 * float(np.median(low - floor)),
-            "travel_m": travel, "clip_travel_scaled_m": clip_travel * scale,
-            "travel_err": abs(travel - clip_travel * scale) / max(clip_travel * scale, 0.2),
-            "mapped": match.ok, "confidence": match.confidence, "shift_cm": 100 * shift,
-            "units": motion.units}
 
 
 @pytest.fixture(scope="module")
@@ -79,9 +36,10 @@ def test_clips_on_bodies_floor_and_travel(clip, bodies):
         r = clip_on_body(clip, char)
         msg = f"{clip.name} on {name}: {r}"
         assert r["mapped"], msg
-        assert abs(r["frame0_cm"]) <= 3.0, msg  # FRAME0_SLACK_M = 2.5 cm at most
-        assert abs(r["median_cm"]) <= 5.0, msg
-        assert r["travel_err"] <= 0.10, msg
+        assert abs(r["frame0_cm"]) <= LIMITS["frame0_cm"], msg  # FRAME0_SLACK_M = 2.5 cm at most
+        assert abs(r["median_cm"]) <= LIMITS["median_cm"], msg
+        assert r["travel_err"] <= LIMITS["travel_err"], msg
+        assert within_limits(r), msg
 
 
 # ----------------------------------------------------------------- units

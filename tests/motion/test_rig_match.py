@@ -5,18 +5,17 @@ from __future__ import annotations
 import copy
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
+from tests.conftest import DATA  # the data card's folder beside the checkout
 from wearfit_usd.errors import InputError
 from wearfit_usd.io.bvh import read_bvh
 from wearfit_usd.motion.joint_maps import map_joints
 from wearfit_usd.motion.joint_maps import roles as name_roles
 from wearfit_usd.motion.rig_match import KEY_ROLES, find_roles, match_skeletons, structure_roles
 
-DATA = Path("/work/shared/data")
 THIRD = DATA / "thirdparty"
 CMU = sorted((DATA / "bvh").glob("cmu*.bvh"))
 CHECKED = KEY_ROLES + ("chest", "neck", "toe_l", "toe_r", "clavicle_l", "clavicle_r")
