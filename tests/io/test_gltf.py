@@ -217,9 +217,13 @@ def test_skinned_items_exported_skinned_once(demo_scenes, tmp_path):
     glb = tmp_path / "lbs.glb"
     assert main(["export", str(demo_scenes[2]), "-o", str(glb), "-q"]) == 0
     g = pygltflib.GLTF2().load(str(glb))
-    usd = read_character(demo_scenes[2])
+    usd = read_character(demo_scenes[2], skinned_copies=True)
+    skinned = {m.name for m in usd.items if m.is_skinned}
+    assert skinned and all(n.endswith("_skinned") for n in skinned)
     names = [m.name for m in g.meshes]
-    assert len(names) == len(set(names)) == 1 + len({m.name for m in usd.items if m.is_skinned})
+    # each item once, skinned, under its own name
+    assert len(names) == len(set(names)) == 1 + len(skinned)
+    assert set(names) == {"Body"} | {n[:-len("_skinned")] for n in skinned}
     assert all(n.skin == 0 for n in g.nodes if n.mesh is not None)
     assert not any(p.targets for m in g.meshes for p in m.primitives)
 
@@ -297,3 +301,55 @@ def test_export_materials_and_texture(tmp_path):
         assert _validate(glb)["numErrors"] == 0
     back = read_character(glb)
     np.testing.assert_allclose(back.body.display_color, [0.1, 0.5, 0.9], atol=1e-6)
+
+
+def test_export_one_primitive_per_subset_material(tmp_path):
+    """A mesh whose GeomSubsets (familyName materialBind) bind materials of
+    their own is written as one primitive per material over the same
+    vertices: every triangle once, each with its subset's baseColor; the
+    faces in no subset keep the mesh's material. Valid glTF; read back with
+    the same geometry."""
+    from pxr import Sdf, Usd, UsdGeom, UsdShade
+
+    from tests.tiny_stage import write_tiny
+    scene = write_tiny(tmp_path / "tiny.usda")
+    stage = Usd.Stage.Open(str(scene))
+    body = stage.GetPrimAtPath("/Root/Character/Body")
+    n_faces = len(UsdGeom.Mesh(body).GetFaceVertexCountsAttr().Get())
+    assert n_faces >= 3
+
+    def material(name, rgb):
+        mat = UsdShade.Material.Define(stage, f"/Root/Looks/{name}")
+        surf = UsdShade.Shader.Define(stage, f"/Root/Looks/{name}/Surface")
+        surf.CreateIdAttr("UsdPreviewSurface")
+        surf.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(rgb)
+        mat.CreateSurfaceOutput().ConnectToSource(surf.ConnectableAPI(), "surface")
+        return mat
+
+    UsdShade.MaterialBindingAPI.Apply(body).Bind(material("Skin", (0.9, 0.7, 0.6)))
+    bind = UsdShade.MaterialBindingAPI(body)
+    for name, rgb, faces in (("Red", (1.0, 0.0, 0.0), [0]), ("Blue", (0.0, 0.0, 1.0), [1, 2])):
+        sub = bind.CreateMaterialBindSubset(name, faces, UsdGeom.Tokens.face)
+        UsdShade.MaterialBindingAPI.Apply(sub.GetPrim()).Bind(material(name, rgb))
+    stage.GetRootLayer().Save()
+    glb = tmp_path / "subsets.glb"
+    assert main(["export", str(scene), "-o", str(glb), "-q"]) == 0
+    g = pygltflib.GLTF2().load(str(glb))
+    gm = next(m for m in g.meshes if m.name == "Body")
+    colours = {g.materials[p.material].name: p for p in gm.primitives}
+    assert set(colours) == {"Red", "Blue", "Skin"}
+    assert len({p.attributes.POSITION for p in gm.primitives}) == 1  # one vertex set
+    base = {g.materials[p.material].name: g.materials[p.material].pbrMetallicRoughness.baseColorFactor
+            for p in gm.primitives}
+    np.testing.assert_allclose(base["Red"], [1, 0, 0, 1])
+    np.testing.assert_allclose(base["Blue"], [0, 0, 1, 1])
+    src = read_character(scene)
+    n_tris = {k: g.accessors[p.indices].count // 3 for k, p in colours.items()}
+    assert sum(n_tris.values()) == len(src.body.faces)
+    per_poly = np.bincount(src.body.tri_to_poly, minlength=n_faces)
+    assert n_tris["Red"] == per_poly[0] and n_tris["Blue"] == per_poly[1] + per_poly[2]
+    if shutil.which("node") and VALIDATOR.exists():
+        assert _validate(glb)["numErrors"] == 0
+    back = read_character(glb)
+    assert len(back.body.faces) == len(src.body.faces)
+    np.testing.assert_allclose(np.sort(back.body.points, axis=0), np.sort(src.body.points, axis=0), atol=1e-5)

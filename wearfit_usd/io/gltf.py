@@ -329,14 +329,23 @@ class _RawMesh:
         pts, faces, joints, weights, uv0, uv1, tri_color, targets = [], [], [], [], [], [], [], []
         offset = 0
         skinned = node.skin is not None
+        shared = {}  # primitives over the same vertex attributes (one per material): their vertices once
         for prim in gm.primitives:
             a = prim.attributes
             if a.POSITION is None:
                 continue
+            key = (a.POSITION, a.TEXCOORD_0, getattr(a, "TEXCOORD_1", None), a.JOINTS_0, a.WEIGHTS_0,
+                   str(prim.targets or []))
             p = doc.accessor(a.POSITION).astype(np.float64)
             f = _primitive_faces(doc, prim, len(p))
             if f is None or len(f) == 0:
                 continue
+            c = _material_color(doc, prim.material)
+            if key in shared:
+                faces.append(f + shared[key])
+                tri_color.append(np.tile(c if c is not None else [np.nan] * 3, (len(f), 1)))
+                continue
+            shared[key] = offset
             tg = [np.zeros_like(p) if t.get("POSITION") is None else doc.accessor(t["POSITION"]).astype(np.float64)
                   for t in (prim.targets or [])]
             targets.append(np.array(tg).reshape(len(tg), len(p), 3))
@@ -345,7 +354,6 @@ class _RawMesh:
             offset += len(p)
             for src, dst in ((a.TEXCOORD_0, uv0), (a.TEXCOORD_1, uv1)):
                 dst.append(None if src is None else doc.accessor(src).astype(np.float64))
-            c = _material_color(doc, prim.material)
             tri_color.append(np.tile(c if c is not None else [np.nan] * 3, (len(f), 1)))
             if skinned:
                 sets = [(a.JOINTS_0, a.WEIGHTS_0), (getattr(a, "JOINTS_1", None), getattr(a, "WEIGHTS_1", None))]

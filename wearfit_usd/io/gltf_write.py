@@ -19,7 +19,8 @@ clips resolved by USD), and writes one ``.glb``:
   cloth cache would lose its dynamics: morph targets keep it exactly. An
   item present both as a skinned mesh and as a point cache (``--items both``)
   is written once, skinned (same prim name and topology, or same points);
-* one material per mesh: ``baseColorFactor`` from the bound
+* one material per mesh, and one per ``materialBind`` GeomSubset with its own
+  binding (one primitive each over the same vertices): ``baseColorFactor`` from the bound
   ``UsdPreviewSurface``'s ``diffuseColor`` (its ``opacity``, ``metallic``
   and ``roughness`` too), ``baseColorTexture`` when ``diffuseColor`` is
   read from a ``UsdUVTexture`` file (embedded), else the mesh's
@@ -40,7 +41,7 @@ import numpy as np
 
 from ..errors import InputError, USDInputError
 from ..geometry.closest import vertex_normals
-from ..model import Character, Mesh
+from ..model import SKINNED_SUFFIX, Character, Mesh
 from ..progress import progress, warn
 from ..transforms import decompose, invert, quat_from_matrix, transform_points
 from .atomic import atomic_output
@@ -149,16 +150,47 @@ def _uv_corners(mesh: Mesh) -> np.ndarray | None:
 
 def _layout(mesh: Mesh):
     """glTF vertices of a mesh: (source point per vertex (V,), UV per vertex
-    (V, 2) or None, triangles (T, 3) into the vertices)."""
+    (V, 2) or None, triangles (T, 3) into the vertices, polygon of each
+    triangle (T,))."""
     fvi = np.asarray(mesh.face_vertex_indices, dtype=np.int64)
     uv = _uv_corners(mesh)
-    corners_tri, _ = triangulate(mesh.face_vertex_counts, np.arange(len(fvi)), mesh.left_handed)
+    corners_tri, poly = triangulate(mesh.face_vertex_counts, np.arange(len(fvi)), mesh.left_handed)
     if uv is None:
-        return np.arange(mesh.n_points), None, fvi[corners_tri]
+        return np.arange(mesh.n_points), None, fvi[corners_tri], poly
     key = np.column_stack([fvi.astype(np.float64), uv])
     uniq, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
     inverse = inverse.ravel()
-    return fvi[first], uv[first], inverse[corners_tri]
+    return fvi[first], uv[first], inverse[corners_tri], poly
+
+
+def _material_groups(prim, mesh: Mesh, poly: np.ndarray, scene_path) -> list:
+    """[(triangle mask (T,), material dict or None)]: one group per
+    ``materialBind`` GeomSubset of ``prim`` with a material of its own (its
+    polygons), and the rest with the mesh's material (:func:`_material`);
+    empty groups left out. ``poly``: the polygon of each triangle."""
+    from pxr import UsdGeom, UsdShade
+    whole = _material(prim, mesh.display_color, scene_path) if prim is not None else None
+    if prim is None:
+        return [(np.ones(len(poly), dtype=bool), whole)]
+    groups, rest = [], np.ones(len(poly), dtype=bool)
+    for sub in UsdGeom.Subset.GetGeomSubsets(UsdGeom.Imageable(prim), UsdGeom.Tokens.face, "materialBind"):
+        mat, _ = UsdShade.MaterialBindingAPI(sub.GetPrim()).ComputeBoundMaterial()
+        if not mat:
+            continue
+        ids = np.asarray(sub.GetIndicesAttr().Get() or [], dtype=np.int64)
+        mask = np.isin(poly, ids) & rest
+        if mask.any():
+            groups.append((mask, _material(sub.GetPrim(), mesh.display_color, scene_path)))
+            rest &= ~mask
+    if rest.any():
+        groups.append((rest, whole))
+    return groups
+
+
+def _plain_name(path: str) -> str:
+    """The prim name of ``path`` without the skinned copies' suffix."""
+    name = path.rsplit("/", 1)[-1]
+    return name[:-len(SKINNED_SUFFIX)] if name.endswith(SKINNED_SUFFIX) else name
 
 
 def _is_wearfit_scene(stage) -> bool:
@@ -188,7 +220,7 @@ def export_scene(scene, out, morph_every: int = 1, max_frames: int | None = None
     if not _is_wearfit_scene(stage):
         raise USDInputError(scene, "not a wearfit scene (no /Root/Character/Body): export takes the output "
                                    "of wearfit dress, animate or fit")
-    char: Character = read_character(scene, require_skeleton=False)
+    char: Character = read_character(scene, require_skeleton=False, skinned_copies=True)
     to_int = char.to_internal
     skel = char.skeleton
     start, end = float(stage.GetStartTimeCode()), float(stage.GetEndTimeCode())
@@ -258,7 +290,7 @@ def export_scene(scene, out, morph_every: int = 1, max_frames: int | None = None
         if m.joint_indices is not None:
             continue
         for s_ in skinned_items:  # the same item also written skinned (--items both): keep that one
-            same_name = s_.path.rsplit("/", 1)[-1] == m.path.rsplit("/", 1)[-1]
+            same_name = _plain_name(s_.path) == _plain_name(m.path)
             if (s_.n_points == m.n_points and np.array_equal(s_.faces, m.faces)
                     and (same_name or np.abs(s_.points - m.points).max() < 1e-3)):
                 drop.add(m.path)
@@ -267,7 +299,7 @@ def export_scene(scene, out, morph_every: int = 1, max_frames: int | None = None
     key_acc = None
     for mesh in [char.body] + [m for m in items if m.path not in drop]:
         prim = cache_prims.get(mesh.path)
-        src, uv, tris = _layout(mesh)
+        src, uv, tris, poly = _layout(mesh)
         skinned = mesh.joint_indices is not None and skin_index is not None
         frames = None
         if not skinned and prim is not None and len(morph_times) > 1 and mesh is not char.body:
@@ -287,15 +319,21 @@ def export_scene(scene, out, morph_every: int = 1, max_frames: int | None = None
         if skinned:
             _skin_attributes(blob, attrs, mesh.joint_indices[src], mesh.joint_weights[src])
         idx_type = UINT16 if len(src) < 65535 else UINT32
-        idx = blob.add(tris.astype(np.uint16 if idx_type == UINT16 else np.uint32).ravel()[:, None],
-                       "SCALAR", idx_type, ELEMENT_ARRAY_BUFFER)
-        material = _material(prim, mesh.display_color, scene) if prim is not None else None
-        # no material and no displayColor: none written (viewers use their default, wearfit its item colours)
-        mat_index = None if material is None else _add_material(g, blob, material, mesh.name, uv is not None,
-                                                                 figures)
-        primitive = pygltflib.Primitive(attributes=attrs, indices=idx, material=mat_index, mode=4)
-        name = mesh.path.rsplit("/", 1)[-1] or mesh.name  # the prim's name (read_character numbers duplicates)
-        gmesh = pygltflib.Mesh(name=name, primitives=[primitive])
+        # one primitive per material: the mesh's, and each materialBind GeomSubset's own (same vertices)
+        primitives = []
+        for mask, material in _material_groups(prim, mesh, poly, scene):
+            idx = blob.add(tris[mask].astype(np.uint16 if idx_type == UINT16 else np.uint32).ravel()[:, None],
+                           "SCALAR", idx_type, ELEMENT_ARRAY_BUFFER)
+            # no material and no displayColor: none written (viewers use their default, wearfit its item colours)
+            mat_index = None if material is None else _add_material(g, blob, material, mesh.name, uv is not None,
+                                                                     figures)
+            primitives.append(pygltflib.Primitive(attributes=attrs, indices=idx, material=mat_index, mode=4))
+        # the prim's name (read_character numbers duplicates); a skinned copy
+        # exported instead of its point cache takes the item's own name
+        name = mesh.path.rsplit("/", 1)[-1] or mesh.name
+        if mesh.joint_indices is not None and any(_plain_name(d) == _plain_name(mesh.path) for d in drop):
+            name = _plain_name(mesh.path)
+        gmesh = pygltflib.Mesh(name=name, primitives=primitives)
         node = pygltflib.Node(name=name, mesh=len(g.meshes))
         g.meshes.append(gmesh)
         g.nodes.append(node)
@@ -306,8 +344,10 @@ def export_scene(scene, out, morph_every: int = 1, max_frames: int | None = None
             figures["skinned"] += 1
         elif frames is not None:
             deltas = frames[1:, src] - pts0[None]
-            primitive.targets = [{"POSITION": blob.add(d.astype(np.float32), "VEC3", FLOAT, ARRAY_BUFFER,
-                                                       minmax=True)} for d in deltas]
+            targets = [{"POSITION": blob.add(d.astype(np.float32), "VEC3", FLOAT, ARRAY_BUFFER,
+                                             minmax=True)} for d in deltas]
+            for primitive in primitives:  # the primitives share their vertices, so their morph targets
+                primitive.targets = targets
             gmesh.weights = [0.0] * len(deltas)
             gmesh.extras = {"targetNames": [f"frame_{t:g}" for t in morph_times[1:]]}
             if key_acc is None:

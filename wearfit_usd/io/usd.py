@@ -295,7 +295,7 @@ def find_skinned_meshes(stage):
 
 
 def read_character(path, body_path: str | None = None, item_paths: list[str] | None = None,
-                   require_skeleton: bool = True) -> Character:
+                   require_skeleton: bool = True, skinned_copies: bool = False) -> Character:
     """Read a rigged body and its wearable items from a USD file (or a
     ``.glb``/``.gltf`` file, through :func:`.gltf.read_gltf_character`).
 
@@ -303,6 +303,9 @@ def read_character(path, body_path: str | None = None, item_paths: list[str] | N
         points). item_paths: prim paths of the items (default: every other
         Mesh). With ``require_skeleton=False`` a stage without any skinned mesh
         is accepted: the largest mesh becomes the body and ``skeleton`` is None.
+        An item written twice (``--items both``: ``<item>`` and
+        ``<item>_skinned``) is read once, as ``<item>``, unless
+        ``skinned_copies`` (then both).
     """
     try:
         if is_gltf(path):  # .glb / .gltf characters (io.gltf)
@@ -319,7 +322,7 @@ def read_character(path, body_path: str | None = None, item_paths: list[str] | N
         lines = [ln.strip() for ln in str(exc).strip().splitlines() if ln.strip()]
         why = lines[-1].split(": '", 1)[-1].rstrip("'") if lines else type(exc).__name__
         raise USDInputError(path, f"cannot read (corrupt or truncated file?): {why}") from None
-    if item_paths is None:  # a `dress --items both` output: each item once
+    if item_paths is None and not skinned_copies:  # a `--items both` output: each item once
         keep = without_skinned_copies([m.name for m in char.items])
         char = dataclasses.replace(char, items=[m for m, k in zip(char.items, keep) if k])
     b = char.body.points
