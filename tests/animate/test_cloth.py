@@ -7,7 +7,14 @@ import numpy as np
 import pytest
 
 from tests.conftest import BVH_DIR, USD_DIR
-from wearfit_usd.animate.cloth import ClothSolver, colour_edges, default_collider, tethers
+from wearfit_usd.animate.cloth import (
+    LAYER_GAP,
+    ClothSolver,
+    colour_edges,
+    default_collider,
+    inner_layer_margin,
+    tethers,
+)
 from wearfit_usd.dress import regions as R
 from wearfit_usd.geometry.closest import SurfaceQuery
 from wearfit_usd.geometry.mesh import edges as mesh_edges
@@ -302,3 +309,31 @@ def test_default_collider_leaves_out_the_arms_of_the_plans_body():
     assert default_collider(plan, 6).tolist() == [True, False, False, True, True, True]
     # regions of another body (other vertex count): every vertex collides
     assert default_collider(plan, 7).all()
+
+
+def test_inner_layer_margin_known_answers():
+    """Over a flat skin (y = 0, normals +y): cloth samples of item 1 at 3 cm;
+    a bound layer of item 0 at 2 cm under the first sample, at 4 cm (over the
+    cloth, not under it) under the second, none near the third; a bound
+    vertex of the cloth's own item under the fourth. Only the first keeps
+    2 cm + LAYER_GAP; a layer higher than the sample's own clearance would
+    be capped at it."""
+    xs = np.array([0.0, 0.2, 0.4, 0.6])
+    body = np.stack([np.repeat(np.linspace(-0.1, 0.7, 9), 9), np.zeros(81),
+                     np.tile(np.linspace(-0.1, 0.1, 9), 9)], axis=1)
+    normals = np.tile([0.0, 1.0, 0.0], (len(body), 1))
+    cloth = np.stack([xs, np.full(4, 0.03), np.zeros(4)], axis=1)
+    layer = np.array([[0.0, 0.02, 0.005], [0.2, 0.04, 0.005], [0.6, 0.01, 0.005]])
+    items = np.concatenate([layer[:2], cloth, layer[2:]])  # item 0: rows 0-1; item 1: rows 2-6
+    plan = SimpleNamespace(offsets=np.array([0, 2, 7]))
+    w = np.array([0, 0, 1, 1, 1, 1, 0], dtype=float)
+    particles = np.array([2, 3, 4, 5])
+    samples = np.stack([np.arange(4), np.arange(4)], axis=1)
+    got = inner_layer_margin(plan, w, items, particles, samples, cloth, np.full(4, 0.03), body, normals)
+    np.testing.assert_allclose(got, [0.02 + LAYER_GAP, 0.0, 0.0, 0.0], atol=1e-12)
+    # capped at the sample's own clearance
+    got = inner_layer_margin(plan, w, items, particles, samples, cloth, np.full(4, 0.0215), body, normals)
+    assert got[0] == pytest.approx(0.0215)
+    # no bound vertices: nothing kept
+    assert not inner_layer_margin(plan, np.ones(7), items, particles, samples, cloth, np.full(4, 0.03),
+                                  body, normals).any()

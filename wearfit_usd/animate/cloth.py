@@ -191,6 +191,55 @@ def tethers(edges: np.ndarray, rest: np.ndarray, n_free: int, n: int, slack: flo
     return ClothTethers(anchor, np.ascontiguousarray(length))
 
 
+LAYER_REACH = 0.03  # m: bound vertices of other items this near a cloth sample may lie under it
+LAYER_GAP = 0.003   # m kept between the cloth and such a layer
+
+
+def inner_layer_margin(plan, weights: np.ndarray, item_points: np.ndarray, particles: np.ndarray,
+                       samples: np.ndarray, sample_points: np.ndarray, sample_clearance: np.ndarray,
+                       body_points: np.ndarray, body_normals: np.ndarray) -> np.ndarray:
+    """(S,) the clearance each cloth sample keeps over the items under it.
+
+    The cloth collides with the body only; over a bound layer of another item
+    (a top whose hem hangs over the hips, shorts under a skirt) kept at
+    MARGIN from the skin, the swinging skirt sank under that layer and it
+    showed through (the long skirt in the arms-held-high clip: the top's
+    orange in patches below the waistband). A sample keeps, instead, the
+    largest clearance of the bound vertices of other items within
+    ``LAYER_REACH`` that are nearer the skin than it is in the static dress,
+    plus ``LAYER_GAP``, at most its own static clearance (0 where none).
+
+    Parameters
+    ----------
+    plan : the dress plan (its item offsets).
+    weights : (M,) cloth weights (0: bound).
+    item_points : (M, 3) all items dressed at frame 0.
+    particles : (P,) the cloth's particles (item rows); samples (S, 2) their
+        pairs (a particle twice: a vertex sample); sample_points (S, 3) and
+        sample_clearance (S,) at frame 0.
+    body_points, body_normals : (C, 3) the collider's vertices and unit
+        normals at frame 0.
+    """
+    out = np.zeros(len(samples))
+    offsets = getattr(plan, "offsets", None)
+    bound = np.flatnonzero(np.asarray(weights) <= 0)
+    if offsets is None or len(bound) == 0 or len(samples) == 0:
+        return out
+    item_of = np.repeat(np.arange(len(offsets) - 1), np.diff(offsets))
+    bp = np.asarray(item_points, dtype=np.float64)[bound]
+    _, nb = cKDTree(body_points).query(bp)
+    bclear = np.einsum("ij,ij->i", bp - body_points[nb], body_normals[nb])
+    k = int(min(16, len(bound)))
+    d, idx = cKDTree(bp).query(sample_points, k=k, distance_upper_bound=LAYER_REACH)
+    d, idx = np.asarray(d).reshape(len(samples), k), np.asarray(idx).reshape(len(samples), k)
+    found = idx < len(bound)
+    safe = np.where(found, idx, 0)
+    own = item_of[particles[samples[:, 0]]]
+    under = found & (item_of[bound[safe]] != own[:, None]) & (bclear[safe] < sample_clearance[:, None] - 1e-3)
+    need = np.where(under, bclear[safe], -np.inf).max(axis=1) + LAYER_GAP
+    return np.where(np.isfinite(need), np.clip(need, 0.0, np.maximum(sample_clearance, 0.0)), 0.0)
+
+
 def default_collider(plan, n: int) -> np.ndarray:
     """(n,) bool: the body vertices loose parts collide with: all but the
     arms when the plan knows the body's regions. A hand hanging beside a
@@ -317,6 +366,12 @@ class ClothSolver:
         _, near = cKDTree(body0).query(q)
         est = np.einsum("ij,ij->i", q - body0[near], self.n0[near])
         self.margin = np.clip(est, 0.0, float(margin))
+        # over another item (a top's hem, shorts under a skirt) the cloth
+        # keeps its clearance above that layer, not the skin's MARGIN
+        self.margin = np.maximum(self.margin, inner_layer_margin(plan, w, pts0, self.particles, self.samples, q,
+                                                                 est, body0, self.n0))
+        # the nearest-vertex searches must reach the largest clearance kept
+        self.reach = max(self.reach, float(self.margin.max(initial=0.0)) + 0.005)
         self.v = np.zeros((self.n_free, 3))
         self.t0 = x0.copy()
         self.hint = np.full(len(self.samples), -1, dtype=np.int64)
