@@ -235,6 +235,28 @@ def test_rigid_part_bent_and_moved():
 
 
 # -- the ray caster -------------------------------------------------------------
+def test_layer_coming_through_another_item():
+    """Two sheets over the plane: an inner one at 5 mm, an outer one at 15 mm
+    (offset by half a cell). Statically every inner vertex is under the
+    outer one (through 0 %); lift the inner sheet's left half to 25 mm and
+    that half comes through it (50 %); the outer sheet is under nothing
+    (None). A single item has no layers at all."""
+    sp_, sf = SHEET
+    outer = sp_ + [H / 2, H / 2, 0.01]
+    mm = sheet_measures([("inner", sp_, sf), ("outer", outer, sf)])
+    both = np.concatenate([sp_, outer])
+    rows = mm(BODY_PLANE[0], both)
+    assert rows[0]["through_pct"] == 0.0 and rows[1]["through_pct"] is None
+    assert len(mm.under) == len(sp_)
+    moved = both.copy()
+    left = sp_[:, 0] < -1e-9
+    moved[:len(sp_)][left, 2] = 0.025
+    got = mm(BODY_PLANE[0], moved)[0]["through_pct"]
+    assert got == pytest.approx(100.0 * left.mean(), abs=1e-9)
+    assert 45.0 < got < 55.0
+    assert sheet_measures([("inner", sp_, sf)])(BODY_PLANE[0], sp_)[0]["through_pct"] is None
+
+
 def test_cast_rays_matches_brute_force():
     rng = np.random.default_rng(3)
     pts = rng.uniform(-0.1, 0.1, (300, 3))

@@ -41,6 +41,12 @@ frame. Per item and per frame:
 - **new penetrations** (``new_pen_pct``): item vertices outside the body (by
   more than ``margin``) in the static dress and inside it by more than
   ``margin`` now, percent of the former.
+- **through another item** (``through_pct``): of the item's vertices that lie
+  under another item in the static dress (a vertex of another item within
+  ``layer_reach`` that is at least ``layer_gap`` farther from the skin), the
+  percent now farther from the skin than that vertex (by more than
+  ``margin``): a top's hem coming through a skirt, layers swapping. None for
+  items under no other item. Reported, not limited (issue 17 names no limit).
 
 :class:`MotionLimits` holds the limits of issue 17 in one place.
 """
@@ -59,7 +65,7 @@ from ..geometry.mesh import edges, similarity_fit
 from ..geometry.rays import cast_rays, ray_triangle
 
 MEASURES = ("stretch_p99", "stretch_max", "separation_p95_mm", "separation_max_mm", "coverage_loss_pct",
-            "rigid_mm", "new_pen_pct")
+            "rigid_mm", "new_pen_pct", "through_pct")
 
 
 @dataclass(frozen=True)
@@ -119,12 +125,15 @@ class MotionMeasures:
         that hang free (see the module docstring), or None (none).
     hanging_reach : metres, the coverage ray's reach in a frame where the
         static hit is on a hanging part.
+    layer_reach, layer_gap : metres: an item vertex is under a vertex of
+        another item this near it and at least this much farther from the
+        skin in the static dress (``through_pct``).
     """
 
     def __init__(self, body_faces: np.ndarray, body_points: np.ndarray, items: list,
                  rigid_groups: list | None = None, reach: float = 0.08, inset: float = 0.005,
                  contact: float = 0.01, margin: float = 0.001, k: int = 5, hanging: np.ndarray | None = None,
-                 hanging_reach: float = 0.5):
+                 hanging_reach: float = 0.5, layer_reach: float = 0.02, layer_gap: float = 0.002):
         self.faces = np.ascontiguousarray(body_faces, dtype=np.int64)
         self.body0 = np.ascontiguousarray(body_points, dtype=np.float64)
         self.names = [n for n, _, _ in items]
@@ -155,6 +164,7 @@ class MotionMeasures:
         self.hanging_reach = float(hanging_reach)
         self.contact_mask = (self.clearance0 < self.contact) & ~self.hanging
         self.outside0 = self.clearance0 > -self.margin
+        self.under, self.over = self._layers(float(layer_reach), float(layer_gap))
         # coverage: the body vertices each item covers statically, and the hit triangle
         n0 = self.normals(self.body0)
         # per item: the triangles sharing a vertex with each triangle (CSR rows)
@@ -176,6 +186,25 @@ class MotionMeasures:
         self.cover_reach = [np.where(self.hanging[self._slice(i)][self.item_faces[i][t]].any(axis=1),
                                      max(self.hanging_reach, self.reach), self.reach)
                             for i, t in enumerate(self.cover_tri)]
+
+    def _layers(self, reach: float, gap: float) -> tuple[np.ndarray, np.ndarray]:
+        """Item vertices under another item in the static dress (U,) and the
+        vertex of the other item over each (U,): the nearest vertex of
+        another item within ``reach`` that is ``gap`` farther from the skin."""
+        m = len(self.items0)
+        item_of = np.repeat(np.arange(len(self.names)), np.diff(self.offsets))
+        if len(self.names) < 2 or m == 0:
+            return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+        k = int(min(12, m))
+        d, idx = cKDTree(self.items0).query(self.items0, k=k, distance_upper_bound=reach)
+        d, idx = np.asarray(d).reshape(m, k), np.asarray(idx).reshape(m, k)
+        found = idx < m
+        safe = np.where(found, idx, 0)
+        ok = found & (item_of[safe] != item_of[:, None]) & (self.clearance0[safe] > self.clearance0[:, None] + gap)
+        has = ok.any(axis=1)
+        first = np.argmax(ok, axis=1)  # nearest first: the first qualifying neighbour
+        under = np.flatnonzero(has)
+        return under.astype(np.int64), safe[under, first[under]].astype(np.int64)
 
     def _slice(self, i: int) -> slice:
         return slice(int(self.offsets[i]), int(self.offsets[i + 1]))
@@ -260,6 +289,12 @@ class MotionMeasures:
             out0 = self.outside0[sl]
             row["new_pen_pct"] = (100.0 * float(np.sum(out0 & (dist[sl] < -self.margin))) / int(out0.sum())
                                   if out0.any() else 0.0)
+            mine = (self.under >= sl.start) & (self.under < sl.stop)
+            if mine.any():
+                u, o = self.under[mine], self.over[mine]
+                row["through_pct"] = 100.0 * float(np.mean(dist[u] > dist[o] + self.margin))
+            else:
+                row["through_pct"] = None
             rows.append(row)
         return rows
 
@@ -303,4 +338,5 @@ def describe_worst(item: str, figs: dict, limits: MotionLimits | None = None) ->
     return (f"{item}: stretch p99 {fig('stretch_p99', '.3g', 'x')} max {fig('stretch_max', '.3g', 'x')}; "
             f"separation p95 {fig('separation_p95_mm', '.3g', ' mm')} max {fig('separation_max_mm', '.3g', ' mm')}; "
             f"coverage loss {fig('coverage_loss_pct', '.3g', ' %')}; rigid {fig('rigid_mm', '.3g', ' mm')}; "
-            f"new penetrations {fig('new_pen_pct', '.3g', ' %')}")
+            f"new penetrations {fig('new_pen_pct', '.3g', ' %')}; "
+            f"through another item {fig('through_pct', '.3g', ' %')}")
