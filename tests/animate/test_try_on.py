@@ -83,8 +83,18 @@ def test_lbs_baseline_writes_skinned_items(tmp_path, ref_male, heavy_male, walk)
     from pxr import Usd, UsdSkel
     out = tmp_path / "lbs.usda"
     rep = animate(ref_male, heavy_male, walk, out,
-                  AnimateOptions(start=1, end=41, fps=30, mode="lbs", write_skinned_items=True))
+                  AnimateOptions(start=1, end=41, fps=30, mode="lbs", write_skinned_items=True, measure_every=3))
     assert rep.frames == 10
+    # the report measures the skinned copies too: in lbs mode they carry the
+    # point caches' own weights, so every figure is the same
+    for m in ref_male.items:
+        a, b = rep.motion_worst[m.name], rep.motion_worst[m.name + "_skinned"]
+        for k, v in a.items():
+            if v is None or v.get("value") is None:
+                assert b[k] is None or b[k].get("value") is None, (m.name, k)
+            else:
+                assert b[k]["value"] == pytest.approx(v["value"], abs=1e-9), (m.name, k)
+                assert b[k]["frame"] == v["frame"]
     stage = Usd.Stage.Open(str(out))
     assert validate_stage(stage) == []
     skinned = [p for p in stage.GetPrimAtPath("/Root/Character").GetChildren()

@@ -253,6 +253,12 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
         rep.skinned_items = [m.name for m in skinned]
     written_items = items if items_mode != "skinned" else []
 
+    # the skinned copies measured as UsdSkel poses them (our LBS equals it),
+    # against the same static dress: their figures go in the report as
+    # "<item>_skinned" beside the point caches'
+    skin_copies = None
+    if skinned is not None and measures is not None:
+        skin_copies = _SkinnedCopies(skinned, target.skeleton.n_joints, measures.names)
     clip_frames = opt.clip_frames
     if clip_frames is None and n_frames > 2000:
         clip_frames = 500
@@ -287,6 +293,8 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
                 rep.per_frame_penetration.append(guard.inside_fraction(body_f, pts))
                 if measures is not None:
                     _record(rep, f, measures(body_f, pts))
+                    if skin_copies is not None:
+                        _record(rep, None, skin_copies.rows(measures, body_f, skin_mats(f)))
                 tm = time.perf_counter()
                 t_measure += tm - td
                 td = tm
@@ -371,9 +379,35 @@ def _motion_measures(target: Character, dressed, ref_plan) -> MotionMeasures:
                           hanging=cloth_weights(ref_plan) >= 0.5)
 
 
-def _record(rep: AnimateReport, frame: int, rows: list) -> None:
-    """Append one measured frame's per-item figures to the report's series."""
-    rep.measured_frames.append(int(frame))
+class _SkinnedCopies:
+    """The skinned copies of the items (:func:`_skinned_copies`), stacked in
+    the order of the motion measures' items (``names``), posed by linear
+    blend skinning: ``rows(measures, body_f, mats)`` -> the measures' rows of
+    one frame, items renamed ``<item>_skinned``."""
+
+    def __init__(self, skinned: list, n_joints: int, names: list):
+        by_name = {m.name.removesuffix(SKINNED_SUFFIX): m for m in skinned}
+        ms = [by_name[n] for n in names]
+        width = max(m.joint_indices.shape[1] for m in ms)
+
+        def pad(a, m):
+            return np.pad(a, ((0, 0), (0, width - a.shape[1])))
+        self.skinner = Skinner(np.concatenate([m.points for m in ms]),
+                               np.concatenate([pad(m.joint_indices, m) for m in ms]),
+                               np.concatenate([pad(m.joint_weights, m) for m in ms]), n_joints)
+
+    def rows(self, measures: MotionMeasures, body_f: np.ndarray, mats: np.ndarray) -> list:
+        rows = measures(body_f, self.skinner(mats))
+        for r in rows:
+            r["item"] = f"{r['item']}{SKINNED_SUFFIX}"
+        return rows
+
+
+def _record(rep: AnimateReport, frame: int | None, rows: list) -> None:
+    """Append one measured frame's per-item figures to the report's series
+    (``frame`` None: more items of the frame recorded last)."""
+    if frame is not None:
+        rep.measured_frames.append(int(frame))
     for row in rows:
         series = rep.motion_series.setdefault(row["item"], {k: [] for k in MEASURES})
         for k in MEASURES:
