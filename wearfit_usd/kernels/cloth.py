@@ -197,133 +197,138 @@ def _dist2_to(b0, b1, j, s, px, py, pz):
     return dx * dx + dy * dy + dz * dz
 
 
-def _collide(k, p, x, hint, samples, margin, clear, q0, move, gap, friction, inv_m, b0, b1, n0, n1, adj_ptr,
+def _collide(p, x, hint, samples, margin, clear, q0, move, gap, friction, inv_m, b0, b1, n0, n1, adj_ptr,
              adj_idx, s_prev, s, walk):
-    """Body collision of collision sample k (see the module docstring)."""
-    h0 = hint[k]
-    if h0 < 0:
-        return
-    ia = samples[k, 0]
-    ib = samples[k, 1]
-    px = 0.5 * (p[ia, 0] + p[ib, 0])
-    py = 0.5 * (p[ia, 1] + p[ib, 1])
-    pz = 0.5 * (p[ia, 2] + p[ib, 2])
-    # lower bound of the distance to the skin: skip the search when clear
-    ex = px - q0[k, 0]
-    ey = py - q0[k, 1]
-    ez = pz - q0[k, 2]
-    dq = math.sqrt(ex * ex + ey * ey + ez * ez)
-    if clear[k] - move * s - dq > margin[k] + gap:
-        return
-    h = h0
-    d2 = _dist2_to(b0, b1, h, s, px, py, pz)
-    if walk:
-        for _ in range(MAX_WALK):
-            best = d2
-            bj = -1
-            for q in range(adj_ptr[h], adj_ptr[h + 1]):
-                j = adj_idx[q]
-                dj = _dist2_to(b0, b1, j, s, px, py, pz)
-                if dj < best:
-                    best = dj
-                    bj = j
-            if bj < 0:
-                break
-            h = bj
-            d2 = best
-        # a fresh bound: the nearest vertex's distance now
-        clear[k] = math.sqrt(d2) + move * s + dq
-    nx, ny, nz = _lerp_normal(n0, n1, h, s)
-    bx = b0[h, 0] * (1.0 - s) + b1[h, 0] * s
-    by = b0[h, 1] * (1.0 - s) + b1[h, 1] * s
-    bz = b0[h, 2] * (1.0 - s) + b1[h, 2] * s
-    d = (px - bx) * nx + (py - by) * ny + (pz - bz) * nz
-    if h != h0:
-        ox, oy, oz = _lerp_normal(n0, n1, h0, s)
-        if ox * nx + oy * ny + oz * nz < 0.0:
-            cx = b0[h0, 0] * (1.0 - s) + b1[h0, 0] * s
-            cy = b0[h0, 1] * (1.0 - s) + b1[h0, 1] * s
-            cz = b0[h0, 2] * (1.0 - s) + b1[h0, 2] * s
-            d_old = (px - cx) * ox + (py - cy) * oy + (pz - cz) * oz
-            if d_old < margin[k]:  # crossed over from the previous vertex's side
-                h = h0
-                nx = ox
-                ny = oy
-                nz = oz
-                bx = cx
-                by = cy
-                bz = cz
-                d = d_old
-    hint[k] = h
-    depth = margin[k] - d
-    if depth <= 0.0:
-        return
-    # the tangent plane of a vertex far to the side says nothing (a stale
-    # vertex): no push; and no push deeper than MAX_PUSH in one pass
-    ex = px - bx
-    ey = py - by
-    ez = pz - bz
-    if ex * ex + ey * ey + ez * ez - d * d > (MAX_SLIDE + gap) * (MAX_SLIDE + gap):
-        return
-    depth = min(depth, MAX_PUSH)
-    # C = n . (q - b) - margin with q = (p_a + p_b) / 2 (p_a itself when a == b)
-    wa = inv_m[ia]
-    if ia == ib:
-        ga = 1.0
-        gb = 0.0
-        wsum = wa
-    else:
-        ga = 0.5
-        gb = 0.5
-        wsum = 0.25 * (wa + inv_m[ib])
-    if wsum <= 0.0:
-        return
-    cx = depth * nx
-    cy = depth * ny
-    cz = depth * nz
-    if friction > 0.0:
-        # tangential displacement of the sample relative to the body vertex over this substep
-        rx = px + cx - 0.5 * (x[ia, 0] + x[ib, 0]) - (bx - (b0[h, 0] * (1.0 - s_prev) + b1[h, 0] * s_prev))
-        ry = py + cy - 0.5 * (x[ia, 1] + x[ib, 1]) - (by - (b0[h, 1] * (1.0 - s_prev) + b1[h, 1] * s_prev))
-        rz = pz + cz - 0.5 * (x[ia, 2] + x[ib, 2]) - (bz - (b0[h, 2] * (1.0 - s_prev) + b1[h, 2] * s_prev))
-        rn = rx * nx + ry * ny + rz * nz
-        tx = rx - rn * nx
-        ty = ry - rn * ny
-        tz = rz - rn * nz
-        tl = math.sqrt(tx * tx + ty * ty + tz * tz)
-        lim = friction * depth
-        if tl > 0.0:
-            f = 1.0 if tl <= lim else lim / tl
-            cx -= f * tx
-            cy -= f * ty
-            cz -= f * tz
-    # the sample moves by c: each particle by w g / sum(w g^2) times c
-    fa = wa * ga / wsum
-    p[ia, 0] += fa * cx
-    p[ia, 1] += fa * cy
-    p[ia, 2] += fa * cz
-    if ia != ib:
-        fb = inv_m[ib] * gb / wsum
-        p[ib, 0] += fb * cx
-        p[ib, 1] += fb * cy
-        p[ib, 2] += fb * cz
+    """Body collision of every collision sample (see the module docstring),
+    one loop (a call per sample, passing these arrays, cost more than the
+    test of a sample far from the body)."""
+    for k in range(samples.shape[0]):
+        h0 = hint[k]
+        if h0 < 0:
+            continue
+        ia = samples[k, 0]
+        ib = samples[k, 1]
+        px = 0.5 * (p[ia, 0] + p[ib, 0])
+        py = 0.5 * (p[ia, 1] + p[ib, 1])
+        pz = 0.5 * (p[ia, 2] + p[ib, 2])
+        # lower bound of the distance to the skin: skip the search when clear
+        ex = px - q0[k, 0]
+        ey = py - q0[k, 1]
+        ez = pz - q0[k, 2]
+        dq = math.sqrt(ex * ex + ey * ey + ez * ez)
+        if clear[k] - move * s - dq > margin[k] + gap:
+            continue
+        h = h0
+        d2 = _dist2_to(b0, b1, h, s, px, py, pz)
+        if walk:
+            for _ in range(MAX_WALK):
+                best = d2
+                bj = -1
+                for q in range(adj_ptr[h], adj_ptr[h + 1]):
+                    j = adj_idx[q]
+                    dj = _dist2_to(b0, b1, j, s, px, py, pz)
+                    if dj < best:
+                        best = dj
+                        bj = j
+                if bj < 0:
+                    break
+                h = bj
+                d2 = best
+            # a fresh bound: the nearest vertex's distance now
+            clear[k] = math.sqrt(d2) + move * s + dq
+        nx, ny, nz = _lerp_normal(n0, n1, h, s)
+        bx = b0[h, 0] * (1.0 - s) + b1[h, 0] * s
+        by = b0[h, 1] * (1.0 - s) + b1[h, 1] * s
+        bz = b0[h, 2] * (1.0 - s) + b1[h, 2] * s
+        d = (px - bx) * nx + (py - by) * ny + (pz - bz) * nz
+        if h != h0:
+            ox, oy, oz = _lerp_normal(n0, n1, h0, s)
+            if ox * nx + oy * ny + oz * nz < 0.0:
+                cx = b0[h0, 0] * (1.0 - s) + b1[h0, 0] * s
+                cy = b0[h0, 1] * (1.0 - s) + b1[h0, 1] * s
+                cz = b0[h0, 2] * (1.0 - s) + b1[h0, 2] * s
+                d_old = (px - cx) * ox + (py - cy) * oy + (pz - cz) * oz
+                if d_old < margin[k]:  # crossed over from the previous vertex's side
+                    h = h0
+                    nx = ox
+                    ny = oy
+                    nz = oz
+                    bx = cx
+                    by = cy
+                    bz = cz
+                    d = d_old
+        hint[k] = h
+        depth = margin[k] - d
+        if depth <= 0.0:
+            continue
+        # the tangent plane of a vertex far to the side says nothing (a stale
+        # vertex): no push; and no push deeper than MAX_PUSH in one pass
+        ex = px - bx
+        ey = py - by
+        ez = pz - bz
+        if ex * ex + ey * ey + ez * ez - d * d > (MAX_SLIDE + gap) * (MAX_SLIDE + gap):
+            continue
+        depth = min(depth, MAX_PUSH)
+        # C = n . (q - b) - margin with q = (p_a + p_b) / 2 (p_a itself when a == b)
+        wa = inv_m[ia]
+        if ia == ib:
+            ga = 1.0
+            gb = 0.0
+            wsum = wa
+        else:
+            ga = 0.5
+            gb = 0.5
+            wsum = 0.25 * (wa + inv_m[ib])
+        if wsum <= 0.0:
+            continue
+        cx = depth * nx
+        cy = depth * ny
+        cz = depth * nz
+        if friction > 0.0:
+            # tangential displacement of the sample relative to the body vertex over this substep
+            rx = px + cx - 0.5 * (x[ia, 0] + x[ib, 0]) - (bx - (b0[h, 0] * (1.0 - s_prev) + b1[h, 0] * s_prev))
+            ry = py + cy - 0.5 * (x[ia, 1] + x[ib, 1]) - (by - (b0[h, 1] * (1.0 - s_prev) + b1[h, 1] * s_prev))
+            rz = pz + cz - 0.5 * (x[ia, 2] + x[ib, 2]) - (bz - (b0[h, 2] * (1.0 - s_prev) + b1[h, 2] * s_prev))
+            rn = rx * nx + ry * ny + rz * nz
+            tx = rx - rn * nx
+            ty = ry - rn * ny
+            tz = rz - rn * nz
+            tl = math.sqrt(tx * tx + ty * ty + tz * tz)
+            lim = friction * depth
+            if tl > 0.0:
+                f = 1.0 if tl <= lim else lim / tl
+                cx -= f * tx
+                cy -= f * ty
+                cz -= f * tz
+        # the sample moves by c: each particle by w g / sum(w g^2) times c
+        fa = wa * ga / wsum
+        p[ia, 0] += fa * cx
+        p[ia, 1] += fa * cy
+        p[ia, 2] += fa * cz
+        if ia != ib:
+            fb = inv_m[ib] * gb / wsum
+            p[ib, 0] += fb * cx
+            p[ib, 1] += fb * cy
+            p[ib, 2] += fb * cz
 
 
-def _tether(p, i, anchor, length):
-    """Tether of free particle i: within length[i] of its (kinematic) anchor."""
-    a = anchor[i]
-    if a < 0:
-        return
-    dx = p[i, 0] - p[a, 0]
-    dy = p[i, 1] - p[a, 1]
-    dz = p[i, 2] - p[a, 2]
-    ln = math.sqrt(dx * dx + dy * dy + dz * dz)
-    if ln <= length[i]:
-        return
-    f = (ln - length[i]) / ln
-    p[i, 0] -= f * dx
-    p[i, 1] -= f * dy
-    p[i, 2] -= f * dz
+def _tethers(p, n_free, anchor, length):
+    """Tethers of the free particles: each within length[i] of its
+    (kinematic) anchor."""
+    for i in range(n_free):
+        a = anchor[i]
+        if a < 0:
+            continue
+        dx = p[i, 0] - p[a, 0]
+        dy = p[i, 1] - p[a, 1]
+        dz = p[i, 2] - p[a, 2]
+        ln = math.sqrt(dx * dx + dy * dy + dz * dz)
+        if ln <= length[i]:
+            continue
+        f = (ln - length[i]) / ln
+        p[i, 0] -= f * dx
+        p[i, 1] -= f * dy
+        p[i, 2] -= f * dz
 
 
 def _frame_loop(state, tg, ed, te, sm, body, prm, scratch):
@@ -342,20 +347,42 @@ def _frame_loop(state, tg, ed, te, sm, body, prm, scratch):
         for c in range(3):
             q0[k, c] = 0.5 * (x[samples[k, 0], c] + x[samples[k, 1], c])
     hs = dt / n_sub
+    inv_hs = 1.0 / hs
     decay = math.exp(-damping * hs)
+    # what stays the same over the frame's substeps and passes, once: the
+    # compliances over h^2 and the reciprocals of the XPBD denominators
+    # (w + alpha~), so the passes multiply instead of divide
+    a_att = np.empty(n_free)
+    k_att = np.empty(n_free)
+    u = np.empty((n_free, 3))
+    inv_dt = 1.0 / dt
+    for i in range(n_free):
+        a_att[i] = att_alpha[i] / (hs * hs)
+        k_att[i] = 1.0 / (inv_m[i] + a_att[i])
+        for c in range(3):
+            u[i, c] = (t1[i, c] - t0[i, c]) * inv_dt
+    a_str = alpha_stretch / (hs * hs)
+    a_cmp = alpha_compress / (hs * hs)
+    n_edges = edges.shape[0]
+    k_str = np.empty(n_edges)
+    k_cmp = np.empty(n_edges)
+    for e in range(n_edges):
+        ws = inv_m[edges[e, 0]] + inv_m[edges[e, 1]]
+        k_str[e] = 1.0 / (ws + a_str)
+        k_cmp[e] = 1.0 / (ws + a_cmp)
     for k_sub in range(n_sub):
         s_prev = k_sub / n_sub
         s = (k_sub + 1) / n_sub
         # predict, and the first pass's attachment (its multiplier starts at 0)
         for i in range(n_free):
-            a = att_alpha[i] / (hs * hs)
             wi = inv_m[i]
+            ki = k_att[i]
             for c in range(3):
-                u = (t1[i, c] - t0[i, c]) / dt
-                vc = u + (v[i, c] - u) * decay + gravity[c] * hs
+                uc = u[i, c]
+                vc = uc + (v[i, c] - uc) * decay + gravity[c] * hs
                 v[i, c] = vc
                 pc = x[i, c] + vc * hs
-                dl = -(pc - (t0[i, c] * (1.0 - s) + t1[i, c] * s)) / (wi + a)
+                dl = -(pc - (t0[i, c] * (1.0 - s) + t1[i, c] * s)) * ki
                 lam_a[i, c] = dl
                 p[i, c] = pc + wi * dl
         for i in range(n_free, n_all):
@@ -364,16 +391,16 @@ def _frame_loop(state, tg, ed, te, sm, body, prm, scratch):
         lam_e[:] = 0.0
         for it in range(n_iter):
             for i in range(n_free if it > 0 else 0):
-                a = att_alpha[i] / (hs * hs)
+                a = a_att[i]
+                ki = k_att[i]
                 wi = inv_m[i]
                 for c in range(3):
                     C = p[i, c] - (t0[i, c] * (1.0 - s) + t1[i, c] * s)
-                    dl = (-C - a * lam_a[i, c]) / (wi + a)
+                    dl = (-C - a * lam_a[i, c]) * ki
                     lam_a[i, c] += dl
                     p[i, c] += wi * dl
-            for i in range(n_free):
-                _tether(p, i, te.anchor, te.length)
-            for e in range(edges.shape[0]):
+            _tethers(p, n_free, te.anchor, te.length)
+            for e in range(n_edges):
                 ia = edges[e, 0]
                 ib = edges[e, 1]
                 wa = inv_m[ia]
@@ -385,8 +412,10 @@ def _frame_loop(state, tg, ed, te, sm, body, prm, scratch):
                 if ln < 1e-12:
                     continue
                 C = ln - rest[e]
-                a = (alpha_stretch if C > 0.0 else alpha_compress) / (hs * hs)
-                dl = (-C - a * lam_e[e]) / (wa + wb + a)
+                if C > 0.0:
+                    dl = (-C - a_str * lam_e[e]) * k_str[e]
+                else:
+                    dl = (-C - a_cmp * lam_e[e]) * k_cmp[e]
                 lam_e[e] += dl
                 f = dl / ln
                 p[ia, 0] += wa * f * dx
@@ -395,12 +424,11 @@ def _frame_loop(state, tg, ed, te, sm, body, prm, scratch):
                 p[ib, 0] -= wb * f * dx
                 p[ib, 1] -= wb * f * dy
                 p[ib, 2] -= wb * f * dz
-        for k in range(samples.shape[0]):
-            _collide(k, p, x, hint, samples, margin, clear, q0, move, gap, friction, inv_m, b0, b1, n0, n1,
-                     adj_ptr, adj_idx, s_prev, s, k_sub == 0)
+        _collide(p, x, hint, samples, margin, clear, q0, move, gap, friction, inv_m, b0, b1, n0, n1,
+                 adj_ptr, adj_idx, s_prev, s, k_sub == 0)
         for i in range(n_free):
             for c in range(3):
-                v[i, c] = (p[i, c] - x[i, c]) / hs
+                v[i, c] = (p[i, c] - x[i, c]) * inv_hs
                 x[i, c] = p[i, c]
         for i in range(n_free, n_all):
             for c in range(3):
@@ -416,8 +444,8 @@ def _frame_loop(state, tg, ed, te, sm, body, prm, scratch):
 if HAVE_NUMBA:
     _lerp_normal = jit(_lerp_normal, inline=True)
     _dist2_to = jit(_dist2_to, inline=True)
-    _collide = jit(_collide, inline=True)
-    _tether = jit(_tether, inline=True)
+    _collide = jit(_collide)
+    _tethers = jit(_tethers)
     _frame_loop = jit(_frame_loop)
 
 
@@ -519,7 +547,7 @@ def _collide_numpy(p, x, hint, samples, margin, clear, q0, move, gap, friction, 
 
 
 def _tether_numpy(p, anchor, length):
-    """:func:`_tether` of every free particle at once (the anchors are kinematic)."""
+    """:func:`_tethers`, every free particle at once (the anchors are kinematic)."""
     i = np.flatnonzero(anchor >= 0)
     a = anchor[i]
     d = p[i] - p[a]
