@@ -277,9 +277,53 @@ def walk_fresh_process_time(out_dir: Path, repeat: int = 5) -> list[dict]:
     return rows
 
 
+def cloth_speed(out_dir: Path, frames: int = 60) -> list[dict]:
+    """The cloth's cost per frame on one core (numba's threads limited to
+    one: the solver is one thread): ref_female_longskirt on
+    body_female_heavy, the CMU walk, ``frames`` frames at 30 fps; the whole
+    shot against the LBS baseline's in the same process (issue 17: 5 ms a
+    frame for 5,000 loose vertices, the shot within 1.5x the baseline's)."""
+    from wearfit_usd.animate.try_on import AnimateOptions, animate
+    from wearfit_usd.io.bvh import read_bvh
+    from wearfit_usd.io.usd import read_character
+    from wearfit_usd.kernels import HAVE_NUMBA
+    ref = read_character(USD_DIR / "ref_female_longskirt.usda")
+    tgt = read_character(USD_DIR / "body_female_heavy.usdc")
+    motion = read_bvh(BVH_DIR / "cmu_07_01_walk.bvh")
+    shot = out_dir / "cloth_speed.usdc"
+    opts = dict(start=1, end=1 + 4 * frames, fps=30, measure_every=0)
+    threads = None
+    if HAVE_NUMBA:
+        import numba
+        threads = numba.get_num_threads()
+        numba.set_num_threads(1)
+    try:
+        animate(ref, tgt, motion, shot, AnimateOptions(**opts))  # warm-up: compiled kernels loaded
+        times = {}
+        for mode in ("bind", "lbs"):
+            t0 = time.perf_counter()
+            rep = animate(ref, tgt, motion, shot, AnimateOptions(mode=mode, **opts))
+            times[mode] = (time.perf_counter() - t0, rep)
+    finally:
+        if threads is not None:
+            numba.set_num_threads(threads)
+        shot.unlink(missing_ok=True)
+    secs, rep = times["bind"]
+    n = max(rep.frames, 1)
+    cloth_ms = 1000 * rep.timings["cloth_total"] / n
+    return [{"case": "cloth solve, long skirt walk (one thread)", "frames": rep.frames,
+             "cloth_vertices": rep.cloth_vertices, "compiled": HAVE_NUMBA,
+             "cloth_ms_per_frame": round(cloth_ms, 2),
+             "cloth_cpu_ms_per_frame": round(1000 * rep.timings["cloth_cpu_total"] / n, 2),
+             "cloth_us_per_vertex": round(1000 * cloth_ms / max(rep.cloth_vertices, 1), 2),
+             "shot_s": round(secs, 2), "lbs_shot_s": round(times["lbs"][0], 2),
+             "shot_vs_lbs": round(secs / times["lbs"][0], 2)}]
+
+
 def run(full: bool, out_dir: Path) -> list[dict]:
     out_dir.mkdir(parents=True, exist_ok=True)
     rows = binding_microbench() + walk_command_time(out_dir) + walk_fresh_process_time(out_dir)
+    rows += cloth_speed(out_dir)
     if full:
         # memory flat in the shot length: 20,000 frames within 10 % of 2,000's peak
         short, long_ = long_clip(out_dir, 2000), long_clip(out_dir, 20000)

@@ -1,0 +1,78 @@
+"""Skinned items benchmark: UsdSkel-skinned items against the per-frame redress
+(issue 19's "skinned items on every dev target and CMU clip").
+
+`wearfit animate --items both` writes each item twice: the per-frame redress
+(point caches) and a copy bound to the target skeleton, posed by UsdSkel
+through the shot's SkelAnimation (:func:`dress.item_weights.skinned_items`:
+the weights of the K-triangle binding). The shot's report measures both
+against the same static dress (the skinned copies by our LBS, equal to
+UsdSkel's). Per reference x dev target x clip and item: the worst frame's
+new penetrations of the two, their difference (issue 19's limit: within 1
+percentage point) and the separation p95. Quick: the CMU walk, the first
+60 frames at 30 fps, on ref_male and ref_female x the 10 dev targets; full:
+every CMU clip.
+
+Run alone: ``python3 benchmarks/bench_skinned.py [--full]``.
+"""
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+if __package__ in (None, ""):
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from benchmarks import BVH_DIR, DEFAULT_OUT, USD_DIR, format_table  # noqa: E402
+
+REFS = ("ref_male.usda", "ref_female.usda")
+FRAMES = 60
+
+
+def targets() -> list[Path]:
+    return sorted(USD_DIR.glob("body_*.usdc"))
+
+
+def run(full: bool, out_dir: Path) -> list[dict]:
+    from wearfit_usd.animate.try_on import AnimateOptions, animate
+    from wearfit_usd.dress.plan import plan as plan_dress
+    from wearfit_usd.io.bvh import read_bvh
+    from wearfit_usd.io.usd import read_character
+    clips = sorted(BVH_DIR.glob("cmu*.bvh")) if full else [BVH_DIR / "cmu_07_01_walk.bvh"]
+    out_dir.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for ref_name in REFS:
+        ref = read_character(USD_DIR / ref_name)
+        ref_plan = plan_dress(ref, k=5)
+        for clip in clips:
+            motion = read_bvh(clip)
+            # FRAMES output frames at 30 fps from clip frame 1, whatever the clip's rate
+            end = 1 + int(round(FRAMES * motion.fps / 30.0))
+            for tgt_path in targets():
+                tgt = read_character(tgt_path)
+                t0 = time.perf_counter()
+                rep = animate(ref, tgt, motion, out_dir / "skinned_shot.usdc",
+                              AnimateOptions(start=1, end=min(end, motion.n_frames), items="both", measure_every=1),
+                              ref_plan=ref_plan)
+                secs = time.perf_counter() - t0
+                for item in ref.items:
+                    a, b = rep.motion_worst[item.name], rep.motion_worst[item.name + "_skinned"]
+                    pa, pb = a["new_pen_pct"]["value"], b["new_pen_pct"]["value"]
+                    rows.append({"ref": ref_name.removesuffix(".usda"), "target": tgt_path.stem,
+                                 "clip": clip.stem, "frames": rep.frames, "item": item.name,
+                                 "redress_new_pen_pct": round(pa, 3), "skinned_new_pen_pct": round(pb, 3),
+                                 "skinned_minus_redress_pp": round(pb - pa, 3),
+                                 "within_1pp": bool(pb - pa <= 1.0),
+                                 "redress_sep_p95_mm": _r(a["separation_p95_mm"]["value"]),
+                                 "skinned_sep_p95_mm": _r(b["separation_p95_mm"]["value"]),
+                                 "shot_seconds": round(secs, 1)})
+    (out_dir / "skinned_shot.usdc").unlink(missing_ok=True)
+    return rows
+
+
+def _r(v):
+    return None if v is None else round(float(v), 2)
+
+
+if __name__ == "__main__":
+    print(format_table(run("--full" in sys.argv, DEFAULT_OUT)))
