@@ -61,6 +61,11 @@ def register(sub, common):
                    help="simulate the loose parts (skirts, dresses, coat tails, long hair) as XPBD cloth hanging "
                         "from their attachment, the body as collider (default: on when the items have loose parts; "
                         "bind mode only)")
+    p.add_argument("--rigid-items", choices=("skinned", "bound"), default="skinned",
+                   help="bind mode: rigid items (shoes, hats, glasses) follow the skeleton by skinning with their "
+                        "binding's weights (default; a shoe flexes with the foot and keeps to it), or are bound "
+                        "like the rest, fitted rigidly per part and pushed out of the body (the older way: the "
+                        "toes came through the shoes)")
     p.add_argument("--write-skinned-items", action="store_true",
                    help="the same as --items both (its older name)")
     p.add_argument("--velocities", action="store_true", help="author point velocities (units per second)")
@@ -142,7 +147,8 @@ def run(args) -> int:
                           pose_align=not args.no_pose, cloth=args.cloth,
                           max_frames=args.max_frames,
                           carry_plan=_carry_plan(reference, target, args),
-                          hidden_body="delete" if args.delete_hidden_body else "subset")
+                          hidden_body="delete" if args.delete_hidden_body else "subset",
+                          rigid_items=args.rigid_items)
     rep = animate(reference, target, motion, args.output, opts)
     t = rep.timings
     info(f"wrote {args.output}: {rep.frames} frames at {rep.fps:g} fps, {len(reference.items)} items; "
