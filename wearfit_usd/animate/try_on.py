@@ -228,13 +228,23 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
             cloth_pts0 = cloth.preroll(body.points, body0, lambda b: evaluator(0, b), 1.0 / rt.fps)
         else:
             cloth = None
-    # rigid items (shoes, hats, glasses) skinned to the skeleton (see _RigidItems)
-    rigid = None
+    items_mode = "both" if (opt.write_skinned_items and opt.items == "points") else opt.items
+    if items_mode not in ("points", "skinned", "both"):
+        raise ValueError(f"items: expected points, skinned or both, got {items_mode!r}")
+    # the items skinned to the target's skeleton, once: in lbs mode with the
+    # shot's own weights, else dressed on the bind pose with the weights of
+    # their binding (dress.item_weights.skinned_items, as `wearfit dress
+    # --items` writes them); for the skinned rigid items and the skinned copies
     whole = _wholly_rigid(ref_plan) if opt.mode == "bind" and opt.rigid_items == "skinned" else set()
-    if whole:
+    skin_src = items_for_skin
+    if opt.mode == "bind" and (whole or items_mode != "points"):
         if bind_dressed is None:
             bind_dressed = _bind_dress(reference, target, dressed, opt, ref_plan)
-        rigid = _RigidItems(target, bind_dressed, whole, [m.name for m in items], offsets)
+        skin_src = skinned_items(bind_dressed, target)
+    # rigid items (shoes, hats, glasses) skinned to the skeleton (see _RigidItems)
+    rigid = None
+    if whole:
+        rigid = _RigidItems(skin_src, whole, [m.name for m in items], offsets, target.skeleton.n_joints)
         rep.skinned_rigid_items = rigid.names
     rep.timings["bind"] = time.perf_counter() - t0
     # clearances to keep (and "new penetration" = inside now, outside when dressed)
@@ -266,13 +276,9 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
         measures = _motion_measures(target, bind_dressed, ref_plan)
         rep.timings["measure_setup"] = time.perf_counter() - t0
 
-    items_mode = "both" if (opt.write_skinned_items and opt.items == "points") else opt.items
-    if items_mode not in ("points", "skinned", "both"):
-        raise ValueError(f"items: expected points, skinned or both, got {items_mode!r}")
     skinned = None
     if items_mode != "points":
-        skinned = _skinned_copies(reference, target, dressed, opt, ref_plan, bind_dressed, items_for_skin,
-                                  SKINNED_SUFFIX if items_mode == "both" else "")
+        skinned = _skinned_copies(skin_src, SKINNED_SUFFIX if items_mode == "both" else "")
         rep.skinned_items = [m.name for m in skinned]
     written_items = items if items_mode != "skinned" else []
 
@@ -359,25 +365,18 @@ def _hidden_body(target: Character, base_body, items, opt: AnimateOptions):
     return replace(target, body=body), plan.with_hidden(subsets, keep)
 
 
-def _skinned_copies(reference: Character, target: Character, dressed, opt: AnimateOptions, ref_plan,
-                    bind_dressed, lbs_items: list, suffix: str) -> list:
+def _skinned_copies(skinned: list, suffix: str) -> list:
     """The items as meshes bound to the target's skeleton, in its bind pose
-    (the shot's SkelAnimation poses them through UsdSkel): in ``lbs`` mode
-    with the weights the shot's items are skinned with, else the items
-    dressed statically on the bind pose with the weights of their binding
-    (:func:`dress.item_weights.skinned_items`, as `wearfit dress --items`
-    writes them). ``suffix`` is appended to their names."""
-    if opt.mode == "lbs":
-        out = []
-        for m in lbs_items:
-            c = m.copy_with_points(m.points)
-            c.name = f"{m.name}{suffix}"
-            c.joint_indices, c.joint_weights = m.joint_indices, m.joint_weights
-            out.append(c)
-        return out
-    if bind_dressed is None:
-        bind_dressed = _bind_dress(reference, target, dressed, opt, ref_plan)
-    return skinned_items(bind_dressed, target, suffix=suffix)
+    (the shot's SkelAnimation poses them through UsdSkel): copies of
+    ``skinned`` (meshes with joint indices and weights) with ``suffix``
+    appended to their names."""
+    out = []
+    for m in skinned:
+        c = m.copy_with_points(m.points)
+        c.name = f"{m.name}{suffix}"
+        c.joint_indices, c.joint_weights = m.joint_indices, m.joint_weights
+        out.append(c)
+    return out
 
 
 def _bind_dress(reference: Character, target: Character, dressed, opt: AnimateOptions, ref_plan):
@@ -433,11 +432,11 @@ class _RigidItems:
     penetrations 0.26 % -> 0 % (the binding's frame evaluation lifted the
     collars off behind the ankles and pushed the toes through the fronts).
 
-    ``rows`` (R,) the items' rows among the stacked items (``offsets``);
-    ``skinner(skin_mats)`` -> (R, 3) their points."""
+    ``skinned``: the shot's items skinned to the bind pose, in its order
+    (``order``); ``rows`` (R,) the rigid items' rows among the stacked items
+    (``offsets``); ``skinner(skin_mats)`` -> (R, 3) their points."""
 
-    def __init__(self, target: Character, bind_dressed, names: set, order: list, offsets: np.ndarray):
-        skinned = skinned_items(bind_dressed, target)
+    def __init__(self, skinned: list, names: set, order: list, offsets: np.ndarray, n_joints: int):
         if [m.name for m in skinned] != list(order):
             raise RuntimeError(f"skinned items {[m.name for m in skinned]} not in the shot's order {order}")
         rows, pts, ji, jw = [], [], [], []
@@ -451,8 +450,7 @@ class _RigidItems:
             ji.append(m.joint_indices)
             jw.append(m.joint_weights)
         self.rows = np.concatenate(rows).astype(np.int64)
-        self.skinner = Skinner(np.concatenate(pts), np.concatenate(ji), np.concatenate(jw),
-                               target.skeleton.n_joints)
+        self.skinner = Skinner(np.concatenate(pts), np.concatenate(ji), np.concatenate(jw), n_joints)
 
 
 class _SkinnedCopies:
@@ -464,13 +462,10 @@ class _SkinnedCopies:
     def __init__(self, skinned: list, n_joints: int, names: list):
         by_name = {m.name.removesuffix(SKINNED_SUFFIX): m for m in skinned}
         ms = [by_name[n] for n in names]
-        width = max(m.joint_indices.shape[1] for m in ms)
-
-        def pad(a, m):
-            return np.pad(a, ((0, 0), (0, width - a.shape[1])))
+        # one weight source, one influence count: the items stack as they are
         self.skinner = Skinner(np.concatenate([m.points for m in ms]),
-                               np.concatenate([pad(m.joint_indices, m) for m in ms]),
-                               np.concatenate([pad(m.joint_weights, m) for m in ms]), n_joints)
+                               np.concatenate([m.joint_indices for m in ms]),
+                               np.concatenate([m.joint_weights for m in ms]), n_joints)
 
     def rows(self, measures: MotionMeasures, body_f: np.ndarray, mats: np.ndarray) -> list:
         rows = measures(body_f, self.skinner(mats))
