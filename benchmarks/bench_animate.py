@@ -21,7 +21,7 @@ import numpy as np
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks import BVH_DIR, DEFAULT_OUT, USD_DIR, format_table  # noqa: E402
+from benchmarks import BVH_DIR, DEFAULT_OUT, USD_DIR, clip_end, format_table  # noqa: E402
 
 QUICK = [("cmu_07_01_walk.bvh", "ref_male.usda", "body_male_heavy.usdc")]
 FULL_CLIPS = sorted(p.name for p in BVH_DIR.glob("cmu*.bvh")) if BVH_DIR.exists() else []
@@ -291,7 +291,7 @@ def cloth_speed(out_dir: Path, frames: int = 60) -> list[dict]:
     tgt = read_character(USD_DIR / "body_female_heavy.usdc")
     motion = read_bvh(BVH_DIR / "cmu_07_01_walk.bvh")
     shot = out_dir / "cloth_speed.usdc"
-    opts = dict(start=1, end=1 + 4 * frames, fps=30, measure_every=0)
+    opts = dict(start=1, end=clip_end(motion, frames), fps=30, measure_every=0)
     threads = None
     if HAVE_NUMBA:
         import numba

@@ -30,7 +30,7 @@ from pathlib import Path
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks import BVH_DIR, DEFAULT_OUT, USD_DIR, format_table  # noqa: E402
+from benchmarks import BVH_DIR, DEFAULT_OUT, USD_DIR, clip_end, format_table  # noqa: E402
 
 REFERENCES = {"ref_female_longskirt.usda": "female", "ref_female.usda": "female", "ref_male.usda": "male"}
 LOOSE = {"ref_female_longskirt.usda"}  # references whose shots get a contact sheet
@@ -64,8 +64,7 @@ def run_shot(clip: str, ref_name: str, body_name: str, mode: str, out_dir: Path,
     ref = read_character(USD_DIR / ref_name)
     tgt = read_character(USD_DIR / body_name)
     motion = read_bvh(BVH_DIR / clip)
-    # the first `frames` output frames at 30 fps, or the whole clip when shorter (the run: 169 frames)
-    end = None if frames is None else min(1 + int(round(frames * motion.fps / 30.0)), motion.n_frames)
+    end = None if frames is None else clip_end(motion, frames)
     shot = out_dir / f"motion_{Path(clip).stem}_{Path(ref_name).stem}_{Path(body_name).stem}_{mode}.usdc"
     t0 = time.perf_counter()
     rep = animate(ref, tgt, motion, shot, AnimateOptions(start=1, end=end, fps=30, mode=mode, measure_every=1))

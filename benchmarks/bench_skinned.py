@@ -23,7 +23,7 @@ from pathlib import Path
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks import BVH_DIR, DEFAULT_OUT, USD_DIR, format_table  # noqa: E402
+from benchmarks import BVH_DIR, DEFAULT_OUT, USD_DIR, clip_end, format_table  # noqa: E402
 
 REFS = ("ref_male.usda", "ref_female.usda")
 FRAMES = 60
@@ -46,13 +46,11 @@ def run(full: bool, out_dir: Path) -> list[dict]:
         ref_plan = plan_dress(ref, k=5)
         for clip in clips:
             motion = read_bvh(clip)
-            # FRAMES output frames at 30 fps from clip frame 1, whatever the clip's rate
-            end = 1 + int(round(FRAMES * motion.fps / 30.0))
             for tgt_path in targets():
                 tgt = read_character(tgt_path)
                 t0 = time.perf_counter()
                 rep = animate(ref, tgt, motion, out_dir / "skinned_shot.usdc",
-                              AnimateOptions(start=1, end=min(end, motion.n_frames), items="both", measure_every=1),
+                              AnimateOptions(start=1, end=clip_end(motion, FRAMES), items="both", measure_every=1),
                               ref_plan=ref_plan)
                 secs = time.perf_counter() - t0
                 for item in ref.items:
