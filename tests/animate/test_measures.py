@@ -300,7 +300,7 @@ def test_walk_report_matches_a_direct_computation(usd_dir, bvh_dir, tmp_path):
     from wearfit_usd.animate.loose import cloth_weights
     from wearfit_usd.animate.try_on import AnimateOptions, animate, dress_items
     from wearfit_usd.cli import main
-    from wearfit_usd.dress.metrics import item_rigid_groups
+    from wearfit_usd.dress.item_weights import rigid_pieces
     from wearfit_usd.dress.plan import plan as plan_dress
     from wearfit_usd.io.bvh import read_bvh
     from wearfit_usd.io.usd import read_character
@@ -334,8 +334,7 @@ def test_walk_report_matches_a_direct_computation(usd_dir, bvh_dir, tmp_path):
     # direct: the static dress, the body skinned at the last frame, the items read back
     dressed = dress_items(ref, tgt)
     mm = MotionMeasures(tgt.body.faces, tgt.body.points, [(m.name, m.points, m.faces) for m in dressed.items],
-                        [item_rigid_groups(dressed.plan, sl) for sl in dressed.plan.item_slices()],
-                        hanging=cloth_weights(plan_dress(ref)) >= 0.5)
+                        rigid_pieces(dressed, tgt), hanging=cloth_weights(plan_dress(ref)) >= 0.5)
     rt = retarget(read_bvh(clip), tgt.skeleton, start=1, end=81, fps=30.0)
     rt, _ = place_on_floor(rt, tgt.skeleton, tgt.body, "auto")  # as animate's default --floor auto
     f = 19

@@ -246,8 +246,9 @@ def test_shoes_keep_to_the_feet_in_the_walk(tmp_path, ref_female):
     stayed on the ankles and the toes inside only when the rigid items
     follow the skeleton (skinned with their binding's weights). Measured,
     60 frames: bound (the binding, a rigid fit per part and the push-out)
-    coverage loss 3.96 %, separation p95 10.6 mm, stretch max 7.7x; skinned
-    0.31 %, 0.62 mm, 1.75x. The same shot with ``rigid_items="bound"`` is
+    coverage loss 3.96 %, separation p95 10.6 mm, stretch max 7.7x, its
+    articulated pieces 45 mm off a similarity; skinned (articulated weights)
+    0.36 %, 2.6 mm, 1.94x, 0 mm. The same shot with ``rigid_items="bound"`` is
     the old path, and must stay as bad as it was (the option is real)."""
     target = read_character(USD_DIR / "body_female_thin.usdc")
     clip = read_bvh(BVH_DIR / "cmu_07_01_walk.bvh")
@@ -258,6 +259,8 @@ def test_shoes_keep_to_the_feet_in_the_walk(tmp_path, ref_female):
         figs[mode] = {k: v["value"] for k, v in rep.motion_worst["shoes02"].items()}
         assert rep.skinned_rigid_items == (["shoes02"] if mode == "skinned" else [])
     s, b = figs["skinned"], figs["bound"]
-    assert s["coverage_loss_pct"] <= 1.0 and s["separation_p95_mm"] <= 3.0 and s["stretch_max"] <= 2.5, s
-    assert s["new_pen_pct"] <= 0.5, s
-    assert b["coverage_loss_pct"] > 2.0 and b["separation_p95_mm"] > 5.0, b
+    assert s["coverage_loss_pct"] <= 1.0 and s["separation_p95_mm"] <= 3.5 and s["stretch_max"] <= 2.5, s
+    assert s["new_pen_pct"] <= 0.5 and s["stretch_p99"] <= 1.15, s
+    # articulated: sole, toe cap and collar each rigid (issue 17's 2 mm)
+    assert s["rigid_mm"] <= 2.0, s
+    assert b["coverage_loss_pct"] > 2.0 and b["separation_p95_mm"] > 5.0 and b["rigid_mm"] > 10.0, b

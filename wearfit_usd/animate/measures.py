@@ -34,8 +34,10 @@ frame. Per item and per frame:
   skin is not seen from outside along its normal), a leg through the skirt
   or a tear does not.
 - **rigid parts** (``rigid_mm``): the largest distance of a vertex of a rigid
-  group (each articulated piece: the plan's rigid groups are split per body
-  region, e.g. a shoe per foot) from the best similarity transform
+  group (each articulated piece: :func:`dress.item_weights.rigid_pieces`
+  splits the plan's rigid groups, a shoe per foot, into the pieces its
+  skinning moves rigidly, sole, toe cap and collar, leaving out the hinges
+  between them) from the best similarity transform
   (:func:`geometry.mesh.similarity_fit`) of the group's static points onto
   its points in this frame. None for items without rigid groups.
 - **new penetrations** (``new_pen_pct``): item vertices outside the body (by

@@ -31,8 +31,7 @@ import numpy as np
 from ..dress.apply import apply as apply_plan
 from ..dress.apply import dress
 from ..dress.hidden_body import SHOT_DEPTH, SHOT_MAX_GAP, hide_or_drop
-from ..dress.item_weights import SKINNED_SUFFIX, skinned_items
-from ..dress.metrics import item_rigid_groups
+from ..dress.item_weights import SKINNED_SUFFIX, rigid_pieces, skinned_items
 from ..dress.plan import DressPlan
 from ..dress.plan import plan as plan_dress
 from ..errors import NonFiniteError, USDInputError
@@ -392,14 +391,15 @@ def _bind_dress(reference: Character, target: Character, dressed, opt: AnimateOp
 def _motion_measures(target: Character, dressed, ref_plan) -> MotionMeasures:
     """The motion measures' reference: ``dressed``, the items dressed
     statically on the target's bind pose (:func:`_bind_dress`), with the
-    rigid groups of its plan. The same reference in both modes: bind and
+    articulated rigid pieces of its plan's rigid groups
+    (:func:`dress.item_weights.rigid_pieces`: a shoe's sole and toe cap,
+    the hinge between them in neither). The same reference in all modes: bind and
     lbs compare. The loose parts' hanging vertices (cloth weight >= 1/2 on
     the reference's plan, in every mode) are not contacts and may swing
     away from the body they cover."""
-    pl = dressed.plan
     return MotionMeasures(target.body.faces, target.body.points,
                           [(m.name, m.points, m.faces) for m in dressed.items],
-                          [item_rigid_groups(pl, sl) for sl in pl.item_slices()],
+                          rigid_pieces(dressed, target),
                           hanging=cloth_weights(ref_plan) >= 0.5)
 
 
