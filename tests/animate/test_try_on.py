@@ -182,6 +182,12 @@ def test_bad_inputs(tmp_path, ref_male, heavy_male, walk, capsys):
     with pytest.raises(USDInputError, match="no wearable items"):
         animate(no_items, heavy_male, walk, tmp_path / "x.usdc", AnimateOptions(end=5))
     assert not (tmp_path / "x.usdc").exists()
+    # options the CLI restricts are checked through the API too, before any work
+    for bad in ({"rigid_items": "skin"}, {"mode": "pose"}, {"items": "all"}):
+        key = next(iter(bad))
+        with pytest.raises(ValueError, match=f"AnimateOptions.{key}"):
+            animate(ref_male, heavy_male, walk, tmp_path / "y.usdc", AnimateOptions(end=5, **bad))
+    assert not (tmp_path / "y.usdc").exists()
     truncated = tmp_path / "cut.bvh"
     text = (BVH_DIR / "cmu_07_01_walk.bvh").read_text().splitlines()
     truncated.write_text("\n".join(text[:-100]) + "\n")

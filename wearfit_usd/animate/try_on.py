@@ -119,6 +119,11 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
     ``k=options.k``) built earlier, reused instead of a new one (it is left
     unchanged, so one plan serves every clip and target)."""
     opt = options or AnimateOptions()
+    for name, value, allowed in (("mode", opt.mode, ("bind", "lbs")),
+                                 ("rigid_items", opt.rigid_items, ("skinned", "bound")),
+                                 ("items", opt.items, ("points", "skinned", "both"))):
+        if value not in allowed:
+            raise ValueError(f"AnimateOptions.{name}: expected one of {', '.join(allowed)}, got {value!r}")
     rep = AnimateReport()
     t_all = time.perf_counter()
     if target.skeleton is None:
@@ -228,8 +233,6 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
         else:
             cloth = None
     items_mode = "both" if (opt.write_skinned_items and opt.items == "points") else opt.items
-    if items_mode not in ("points", "skinned", "both"):
-        raise ValueError(f"items: expected points, skinned or both, got {items_mode!r}")
     # the items skinned to the target's skeleton, once: in lbs mode with the
     # shot's own weights, else dressed on the bind pose with the weights of
     # their binding (dress.item_weights.skinned_items, as `wearfit dress
