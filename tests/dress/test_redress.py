@@ -582,6 +582,10 @@ def test_rigid_parts_that_do_not_fit_the_body_move_freely(ref_male, usd_dir):
     assert released == ["shoes01", "short02"]
     assert set(kept.rigid_items) == set(pl.rigid_items) - {"short02", "shoes01"}
     assert len(kept.rigid_groups) == len(pl.rigid_groups) - 3 and kept.rigid_parts is not None  # 2 shoes, hair
+    # the freed groups are kept apart: still rigid pieces in motion (skinned items)
+    assert len(kept.released_groups) == 3 and pl.released_groups == []
+    sizes = sorted(len(g[0]) for g in kept.released_groups + kept.rigid_groups)
+    assert sizes == sorted(len(g[0]) for g in pl.rigid_groups)
     # by the fraction rule alone (5 %) the shoes would stay
     assert release_misfits(pl, body, q, max_depth=1.0)[1] == ["short02"]
     res = dress(ref_male, tgt, body_points=body)

@@ -333,8 +333,10 @@ def skinned_items(result, target, suffix: str = "", max_influences: int = MAX_IN
     n_joints = target.skeleton.n_joints
     body_ji, body_jw = target_body_weights(target.body, result.body_points, pl.binding.faces, n_joints,
                                            max_influences)
-    ji, jw = item_skin_weights(pl.binding, body_ji, body_jw, n_joints, pl.rigid_groups, max_influences,
-                               parents=target.skeleton.parents)
+    # released groups too: freed for the static fit (the shoe did not fit
+    # this body rigidly), they are still rigid pieces in motion
+    ji, jw = item_skin_weights(pl.binding, body_ji, body_jw, n_joints, pl.rigid_groups + pl.released_groups,
+                               max_influences, parents=target.skeleton.parents)
     out = []
     for item, sl in zip(result.items, pl.item_slices()):
         m = item.copy_with_points(item.points)
@@ -347,7 +349,8 @@ def skinned_items(result, target, suffix: str = "", max_influences: int = MAX_IN
 def rigid_pieces(result, target) -> list:
     """The articulated rigid pieces of a dressing's rigid parts, per item.
 
-    Each rigid group of ``result.plan`` (a shoe, a hat) is weighted as
+    Each rigid group of ``result.plan`` (a shoe, a hat; released groups
+    too) is weighted as
     :func:`skinned_items` weights it (:func:`rigid_group_weights` with the
     target skeleton's parents) and split into its pieces
     (:func:`articulated_pieces`: a shoe's sole and toe cap; a hat whole).
@@ -364,7 +367,7 @@ def rigid_pieces(result, target) -> list:
     coef = binding_coefficients(pl.binding, body_w.shape[0])
     slices = pl.item_slices()
     out = [[] for _ in slices]
-    for gv, bv, bw in pl.rigid_groups:
+    for gv, bv, bw in pl.rigid_groups + pl.released_groups:
         gv = np.asarray(gv, dtype=np.int64)
         if len(gv) == 0:
             continue

@@ -128,7 +128,11 @@ class DressPlan:
     layers: [(outer item, inner item, separation (n_outer,) m, inner vertex
         (n_outer,))] (:func:`layers.layer_gaps`);
     timings: seconds per planning step;
-    rigid_parts: the rigid groups' per-body evaluator (None without groups).
+    rigid_parts: the rigid groups' per-body evaluator (None without groups);
+    released_groups: rigid groups (as ``rigid_groups``) that
+        :func:`repair.release_misfits` freed on this target: bound freely for
+        the static fit, still rigid pieces in motion
+        (:func:`item_weights.skinned_items`).
     """
     items: list[Mesh]
     binding: Binding
@@ -147,6 +151,7 @@ class DressPlan:
     smoother: LooseSmoother
     layers: list
     timings: dict = field(default_factory=dict)
+    released_groups: list = field(default_factory=list)  # rigid groups repair.release_misfits freed on a target
     rigid_parts: RigidParts | None = field(init=False, default=None)
 
     def __post_init__(self):

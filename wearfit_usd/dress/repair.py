@@ -66,7 +66,9 @@ def release_misfits(plan_: DressPlan, body_points: np.ndarray, query: SurfaceQue
     still = {item_name(gv) for gv, ok in zip(parts.groups, fits) if ok}
     names = sorted({item_name(gv) for gv, ok in zip(parts.groups, fits) if not ok})
     keep = [group for group, ok in zip(plan_.rigid_groups, fits) if ok]
-    return replace(plan_, rigid_groups=keep, rigid_items=[n for n in plan_.rigid_items if n in still]), names
+    freed = [group for group, ok in zip(plan_.rigid_groups, fits) if not ok]
+    return replace(plan_, rigid_groups=keep, rigid_items=[n for n in plan_.rigid_items if n in still],
+                   released_groups=list(plan_.released_groups) + freed), names
 
 
 def deformation_gradients(plan_: DressPlan, body_points: np.ndarray, rigid_maps: list) -> np.ndarray:
