@@ -19,6 +19,7 @@ from wearfit_usd.dress.item_weights import (
     item_skin_weights,
     piece_joints,
     prune,
+    rigid_group_weights,
 )
 from wearfit_usd.geometry.mesh import similarity_fit
 
@@ -96,6 +97,27 @@ def test_articulated_weights_snap_the_skin_to_pieces_with_linear_hinges():
     assert [p.tolist() for p in articulated_pieces(np.tile(out, (3, 1)))] == [[0, 5, 10], [1, 6, 11]]
     with pytest.raises(ValueError, match="hinge"):
         articulated_weights(w, LEG_PARENTS, hinge=(0.9, 0.1))
+
+
+def test_with_parents_a_part_on_one_joint_is_articulated_too():
+    """Short hair: its body patch is 95 % on the head (3 here), so without
+    the skeleton it went wholly on the head and the neck (2) came through
+    its nape in motion; with the parents the nape vertex takes its hinge
+    share of the neck, the rest stays on the head alone."""
+    import scipy.sparse as sps
+    dense = np.zeros((3, 7))
+    dense[0, 3] = 1.0
+    dense[1, [2, 3]] = [0.3, 0.7]     # the nape, partly on the neck
+    dense[2, [3, 4]] = [0.97, 0.03]
+    body_w = sps.csr_matrix(np.eye(7)[[3, 3]])
+    group = (np.arange(3), np.array([0, 1]), np.array([0.95, 0.05]))
+    on_one = rigid_group_weights(dense, group, body_w)
+    assert (on_one[:, 3] == 1.0).all()
+    art = rigid_group_weights(dense, group, body_w, LEG_PARENTS)
+    expect = np.zeros((3, 7))
+    expect[[0, 2], 3] = 1.0
+    expect[1, [2, 3]] = [0.25, 0.75]
+    np.testing.assert_allclose(art, expect, atol=1e-12)
 
 
 def _skin(points, weights, mats):
