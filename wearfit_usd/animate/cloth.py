@@ -65,6 +65,7 @@ from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
 from ..dress import regions as R
+from ..dress.corrections import smoothstep
 from ..geometry.closest import VertexNormals
 from ..geometry.mesh import adjacency, similarity_fit
 from ..kernels import HAVE_NUMBA, RadiusGrid
@@ -79,7 +80,7 @@ from ..kernels.cloth import (
     cloth_frame,
     make_scratch,
 )
-from .loose import cloth_weights, smoothstep
+from .loose import cloth_weights
 
 GRAVITY = (0.0, -9.81, 0.0)  # m/s^2, internal space (Y up)
 MAX_SUBSTEP = 1.0 / 240.0    # s: longest substep

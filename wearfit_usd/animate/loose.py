@@ -40,7 +40,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import dijkstra
 
 from ..dress import regions as R
-from ..dress.corrections import LOOSE_START
+from ..dress.corrections import LOOSE_START, smoothstep
 
 SKIRT_RAMP = 0.12   # m along the skirt from its attachment line to fully free
 HIP_HEIGHT = 0.10   # m above the crotch (lowest torso vertex) a skirt's attachment line starts
@@ -48,12 +48,6 @@ HIP_BAND = 0.08     # m: the band above that holding the attachment line (above 
 HANG_START = 0.08   # m from the attachment line before other items start to hang free
 HANG_RAMP = 0.10    # m over which they become fully free
 MIN_FREE = 16       # an item with fewer vertices of weight > 0 is not simulated at all
-
-
-def smoothstep(s: np.ndarray) -> np.ndarray:
-    """(n,) ``3 s^2 - 2 s^3`` of s clipped to [0, 1]."""
-    s = np.clip(s, 0.0, 1.0)
-    return s * s * (3.0 - 2.0 * s)
 
 
 def attachment_distance(points: np.ndarray, item_edges: np.ndarray, anchors: np.ndarray) -> np.ndarray:

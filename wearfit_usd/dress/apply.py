@@ -33,7 +33,7 @@ from ..model import Character, Mesh
 from ..progress import debug, info
 from . import regions as R
 from .binding import local_signed_distance
-from .corrections import SPREAD_CLEARANCE_DRIFT, push_out, spread_corrections
+from .corrections import SPREAD_CLEARANCE_DRIFT, push_out, smoothstep, spread_corrections
 from .layers import keep_layers
 from .plan import DressPlan, plan
 from .repair import release_misfits, untangle_items
@@ -214,8 +214,7 @@ def skirt_heights(plan_: DressPlan, body_points: np.ndarray, free: np.ndarray) -
         y0 = plan_.ref_points[r, 1]
         # from the binding's heights at the top to the scaled copy's from the
         # crotch down (over the hips the binding's follow their shape)
-        t = np.clip((top0 - y0) / max(top0 - crotch0, 1e-6), 0.0, 1.0)
-        share = t * t * (3.0 - 2.0 * t)
+        share = smoothstep((top0 - y0) / max(top0 - crotch0, 1e-6))
         heights.append(free[r, 1] + share * (f1 + k * (y0 - f0) - free[r, 1]))
     if not rows:
         return np.zeros(0, dtype=np.int64), np.zeros(0)

@@ -31,6 +31,12 @@ def looseness(ref_clearance: np.ndarray, skirt_mask: np.ndarray | None = None) -
     return a
 
 
+def smoothstep(s: np.ndarray) -> np.ndarray:
+    """(n,) ``3 s^2 - 2 s^3`` of s clipped to [0, 1]."""
+    s = np.clip(s, 0.0, 1.0)
+    return s * s * (3.0 - 2.0 * s)
+
+
 class LooseSmoother:
     """Smooth the displacement ``points - ref_points`` (M, 3) over the item
     mesh where ``weight`` (M,) > 0; built once, applied per evaluation.

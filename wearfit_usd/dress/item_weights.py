@@ -242,14 +242,14 @@ def item_skin_weights(binding: Binding, body_joint_indices: np.ndarray, body_joi
         Joints of the skeleton the body weights index.
     rigid_groups : list of (item vertex indices (P,), body vertex indices (Q,),
         body vertex weights (Q,)), optional
-        Rigid parts (:class:`plan.DressPlan.rigid_groups`); a group whose
-        body patch follows one joint is skinned to it alone, one over several
-        joints is articulated when ``parents`` is given.
+        Rigid parts (:class:`plan.DressPlan.rigid_groups`), weighted by
+        :func:`rigid_group_weights`: articulated when ``parents`` is given,
+        else on one joint when the body patch follows one joint.
     max_influences : int
         Influences kept per vertex (default 8).
     parents : (J,) int array, optional
-        The skeleton's parents: rigid parts over several joints become
-        articulated rigid pieces (:func:`articulated_weights`).
+        The skeleton's parents: rigid parts become articulated rigid pieces
+        (:func:`articulated_weights`).
 
     Returns
     -------
