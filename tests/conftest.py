@@ -48,6 +48,12 @@ def ref_female(usd_dir):
     return read_character(usd_dir / "ref_female.usda")
 
 
+@pytest.fixture(scope="session")
+def ref_female_longskirt(usd_dir):
+    from wearfit_usd.io.usd import read_character
+    return read_character(usd_dir / "ref_female_longskirt.usda")
+
+
 # --------------------------------------------------------------------------
 # markers: `data` (needs ../shared/data) is given here to every test whose own
 # code or whose fixtures read the data set, so no test can forget it; `slow`

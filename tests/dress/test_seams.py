@@ -49,14 +49,55 @@ def test_shares_known_answers_across_a_line():
 
 def test_regions_that_do_not_meet_do_not_blend():
     pts, e = _strip()
-    # the two legs of trousers (they meet only through the torso), a skirt next to a leg
-    for a, b in ((R.LEFT_LEG, R.RIGHT_LEG), (R.HIPS, R.LEFT_LEG)):
+    # a skirt next to a leg, the head next to a leg
+    for a, b in ((R.HIPS, R.LEFT_LEG), (R.HEAD, R.RIGHT_LEG)):
         labels = np.where(pts[:, 0] < 0, a, b)
         other, share = seam_shares(pts, e, labels, band=0.08)
         assert np.all(other == -1) and np.all(share == 0.0)
     # one label: nothing; band 0: nothing
     assert np.all(seam_shares(pts, e, np.full(len(pts), R.TORSO))[1] == 0.0)
     assert np.all(seam_shares(pts, e, np.where(pts[:, 0] < 0, R.TORSO, R.HEAD), band=0.0)[1] == 0.0)
+
+
+def test_the_two_legs_blend_over_the_crotch_band_only():
+    """Pants join the legs in one crotch seam: the sides blend there (half
+    and half on the line), over PAIR_BAND (3 cm), not the 8 cm band."""
+    from wearfit_usd.dress.seams import PAIR_BAND
+    band = PAIR_BAND[frozenset((R.LEFT_LEG, R.RIGHT_LEG))]
+    assert band == pytest.approx(0.03)
+    pts, e = _strip()
+    labels = np.where(pts[:, 0] < 0, R.RIGHT_LEG, R.LEFT_LEG)
+    other, share = seam_shares(pts, e, labels, band=0.08)
+    for i, x in enumerate(pts[:, 0]):
+        d = x + 0.01 if x >= 0 else -x
+        phi = max(0.0, 1.0 - d / band) ** 2
+        assert share[i] == pytest.approx(phi / (1.0 + phi), abs=1e-9), (x, share[i])
+        assert other[i] == ((R.LEFT_LEG if x < 0 else R.RIGHT_LEG) if phi > 0 else -1)
+    assert share[np.argmin(np.abs(pts[:, 0]))] > 0.3  # 1 cm from the other side's first vertex
+    assert np.all(share[np.abs(pts[:, 0]) >= 0.03] == 0.0)  # a trouser leg's inside keeps to its leg
+
+
+def test_pants_crotch_seam_sides_follow_both_legs(ref_female_longskirt):
+    """The hot pants of ref_female_longskirt: the vertices on their crotch
+    seam are bound to the left and the right thigh, half and half (before,
+    each side followed its own thigh and the seam opened 5 cm in a walk)."""
+    from wearfit_usd.dress.plan import plan as make_plan
+    p = make_plan(ref_female_longskirt)
+    i = [m.name for m in p.items].index("female_casualsuit02")
+    sl = p.item_slices()[i]
+    lab = p.regions.bind[sl]
+    pts = p.items[i].points
+    seam = (np.abs(pts[:, 0]) < 0.002) & np.isin(lab, [R.LEFT_LEG, R.RIGHT_LEG])
+    assert seam.sum() >= 10
+    body = ref_female_longskirt.body
+    rows = np.arange(sl.start, sl.stop)[seam]
+    tri = p.binding.triangles[rows]
+    w = p.binding.weights[rows]
+    cx = body.points[body.faces[tri]].mean(axis=2)[..., 0]
+    left = (w * (cx > 0)).sum(axis=1)
+    # each side alone gave 0 or 1; a few seam vertices are farther than the band from the other side
+    assert np.mean((left > 0.1) & (left < 0.9)) > 0.8, left
+    assert np.all((left > 0.0) & (left < 1.0)), left
 
 
 def test_distances_follow_the_item_not_space():

@@ -41,7 +41,14 @@ SEAM_BAND = 0.08  # m along the item: half-width of the blend across a region li
 #: label pairs that meet on the body (HIPS: the skirt label, torso triangles the legs do not move)
 ADJACENT = {frozenset(p) for p in [(R.TORSO, R.LEFT_ARM), (R.TORSO, R.RIGHT_ARM), (R.TORSO, R.HEAD),
                                    (R.TORSO, R.LEFT_LEG), (R.TORSO, R.RIGHT_LEG), (R.HIPS, R.TORSO),
-                                   (R.HIPS, R.LEFT_ARM), (R.HIPS, R.RIGHT_ARM), (R.HIPS, R.HEAD)]}
+                                   (R.HIPS, R.LEFT_ARM), (R.HIPS, R.RIGHT_ARM), (R.HIPS, R.HEAD),
+                                   (R.LEFT_LEG, R.RIGHT_LEG)]}
+
+#: the band of a pair narrower than the item's (m along the item): the two
+#: legs meet only in the crotch, where trousers and pants join them in one
+#: seam; there the sides blend over a short band (the gusset), while a
+#: trouser leg's inside a few centimetres below it follows its own leg only
+PAIR_BAND = {frozenset((R.LEFT_LEG, R.RIGHT_LEG)): 0.03}
 
 
 def label_distances(points: np.ndarray, item_edges: np.ndarray, labels: np.ndarray, band: float
@@ -105,10 +112,13 @@ def seam_shares(points: np.ndarray, item_edges: np.ndarray, labels: np.ndarray, 
     present, dist = label_distances(np.asarray(points, dtype=np.float64), item_edges, labels, band)
     if len(present) < 2:
         return other, share
-    phi = np.clip(1.0 - dist / band, 0.0, None) ** 2
-    # only regions that meet the vertex's own region on the body
-    ok = np.array([[frozenset((int(a), int(b))) in ADJACENT for b in present] for a in present])
+    # only regions that meet the vertex's own region on the body, over the
+    # pair's band (PAIR_BAND, at most ``band``)
+    pair = [[frozenset((int(a), int(b))) for b in present] for a in present]
+    ok = np.array([[p in ADJACENT for p in row] for row in pair])
+    width = np.array([[min(band, PAIR_BAND.get(p, band)) for p in row] for row in pair])
     own = np.searchsorted(present, labels)
+    phi = np.clip(1.0 - dist / width[own], 0.0, None) ** 2
     phi = np.where(ok[own], phi, 0.0)
     phi[np.arange(m), own] = 1.0
     rival = phi.copy()
