@@ -23,8 +23,9 @@ by these shares (:func:`binding.blend_rows`): one sparse row still, smooth
 across the line, exact on the body it was built on.
 
 Only regions that meet on the body blend (torso with arms, legs, head; the
-hips a skirt hangs from with the torso above them); a skirt next to a hand
-or the two legs of trousers do not.
+hips a skirt hangs from with the torso above them; the two legs, in the
+crotch, over a narrower band: :data:`PAIR_BAND`); a skirt next to a hand
+does not.
 
 Arrays are numpy; lengths in metres.
 """
