@@ -36,6 +36,7 @@ from ..dress.plan import DressPlan
 from ..dress.plan import plan as plan_dress
 from ..errors import NonFiniteError, USDInputError
 from ..fit.body_fit import fit_character
+from ..geometry.mesh import edges
 from ..io.usd_carry import CarryPlan
 from ..io.usd_shot import ShotWriter
 from ..model import Character
@@ -257,7 +258,8 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
         frame0_items = all_base.copy()
         frame0_items[rigid.rows] = rigid.skinner(skin_mats(0))
     if cloth is None or opt.measure_every:
-        guard = PenetrationGuard(body.faces, base_body, frame0_items, margin=opt.penetration_margin)
+        guard = PenetrationGuard(body.faces, base_body, frame0_items, margin=opt.penetration_margin,
+                                 item_edges=_item_edges(items) if opt.mode == "bind" else None)
     if cloth is not None or rigid is not None:
         # the cloth keeps its own distance from the body: the guard would pull
         # it back to its frame-0 clearance; "new penetration" still counts it.
@@ -269,7 +271,8 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
         if rigid is not None:
             keep[rigid.rows] = False
         pushed_rows = np.flatnonzero(keep)
-        push_guard = PenetrationGuard(body.faces, base_body, all_base[pushed_rows], margin=opt.penetration_margin)
+        push_guard = PenetrationGuard(body.faces, base_body, all_base[pushed_rows], margin=opt.penetration_margin,
+                                      item_edges=_sub_edges(_item_edges(items), pushed_rows, len(all_base)))
     measures = None
     if opt.measure_every and opt.motion_measures:
         t0 = time.perf_counter()
@@ -350,6 +353,24 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
                         "write_fps": n_frames / max(t_write, 1e-9),
                         "total": time.perf_counter() - t_all})
     return rep
+
+
+def _item_edges(items: list) -> np.ndarray:
+    """(E, 2) the edges of the items, stacked (indices into the stacked points)."""
+    out, a = [], 0
+    for m in items:
+        out.append(edges(m.faces) + a)
+        a += m.n_points
+    return np.concatenate(out) if out else np.zeros((0, 2), dtype=np.int64)
+
+
+def _sub_edges(e: np.ndarray, rows: np.ndarray, n: int) -> np.ndarray:
+    """The edges ``e`` between vertices of ``rows`` (of ``n``), renumbered
+    as positions in ``rows``."""
+    pos = np.full(n, -1, dtype=np.int64)
+    pos[rows] = np.arange(len(rows))
+    e = pos[e]
+    return e[(e >= 0).all(axis=1)]
 
 
 def _hidden_body(target: Character, base_body, items, opt: AnimateOptions):
