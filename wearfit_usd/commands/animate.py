@@ -12,6 +12,7 @@ from .args import (
     check_inputs,
     check_output,
     fps_arg,
+    start_arg,
     write_report,
 )
 from .output_options import add_carry_options
@@ -30,8 +31,9 @@ def register(sub, common):
     p.add_argument("clip", help="BVH motion clip")
     p.add_argument("-o", "--output", required=True, help="output USD shot (.usd/.usda/.usdc)")
     p.add_argument("--k", type=bounded_int(1, 64), default=5, help="triangles each item vertex is bound to (default 5)")
-    p.add_argument("--start", type=int, default=0,
-                   help="first clip frame (CMU frame 0 is a converter T-pose: use --start 1)")
+    p.add_argument("--start", type=start_arg, default=None,
+                   help="first clip frame, or 'auto' (default): 1 when frame 0 is a converter's rest pose "
+                        "(the T-pose frame 0 of CMU conversions), else 0")
     p.add_argument("--end", type=int, default=None, help="last clip frame (exclusive)")
     p.add_argument("--fps", type=fps_arg, default=30.0,
                    help="output frame rate, or 'native' for the clip's (default 30)")
@@ -132,6 +134,13 @@ def run(args) -> int:
         from ..motion.joint_maps import load_user_map
         mapping = load_user_map(args.mapping, source_names=motion.joint_names,
                                 target_names=target.skeleton.joint_names if target.skeleton else None)
+    start = args.start
+    if start is None:
+        from ..motion.clip_start import leading_rest_frames
+        start = leading_rest_frames(motion)
+        if start:
+            info(f"{args.clip}: frame 0 is the converter's rest pose (a T-pose): the shot starts at clip frame "
+                 f"{start} (--start 0 keeps it)")
     every = args.measure_every
     if every is None:
         every = 1 if (args.report or args.strict) else 0
@@ -139,7 +148,7 @@ def run(args) -> int:
         raise InputError(None, f"--measure-every must be 0 or more, got {every}")
     if args.strict and every == 0:
         raise InputError(None, "--strict needs measuring: --measure-every 0 turns it off")
-    opts = AnimateOptions(k=args.k, start=args.start, end=args.end, fps=fps, mode=args.mode,
+    opts = AnimateOptions(k=args.k, start=start, end=args.end, fps=fps, mode=args.mode,
                           mapping=mapping, clip_frames=args.clip_frames, velocities=args.velocities,
                           items="both" if args.write_skinned_items and args.items == "points" else args.items,
                           dress_pose=args.dress_pose,

@@ -64,6 +64,20 @@ def fps_arg(text: str):
 fps_arg.__name__ = "fps"
 
 
+def start_arg(text: str):
+    """argparse type for ``--start``: 'auto' (None: see
+    :func:`motion.clip_start.leading_rest_frames`) or a clip frame."""
+    if str(text).strip().lower() == "auto":
+        return None
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a frame number or 'auto', got {text!r}") from None
+
+
+start_arg.__name__ = "start"
+
+
 def check_output(out, inputs=(), suffixes=USD_SUFFIXES, what: str = "output") -> Path:
     """Refuse an output path with another extension, that is a folder, or that
     names one of ``inputs`` (same file after resolving links and ``..``)."""

@@ -22,6 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..io.bvh import read_bvh
+from .clip_start import leading_rest_frames
 from .floor import lowest_points, place_on_floor
 from .retarget import match_clip, retarget
 from .rig_match import find_roles
@@ -46,10 +47,8 @@ def clip_on_body(clip, char, max_eval: int = 40) -> dict:
     ``char`` (a rigged :class:`model.Character`) at 30 fps, evaluated on at
     most ``max_eval`` frames spread over the clip (module docstring)."""
     motion = read_bvh(clip)
-    rot_cols = [motion.channel_start[j] + k for j, c in enumerate(motion.channels)
-                for k, name in enumerate(c) if name.endswith("rotation")]
-    # CMU/Daz conversions start with the converter's rest frame (all rotations zero): skip it
-    start = 1 if motion.n_frames > 1 and np.allclose(motion.values[0, rot_cols], 0, atol=1e-3) else 0
+    # CMU conversions start with the converter's rest frame (a T-pose): skip it, as `animate` does
+    start = leading_rest_frames(motion)
     sk = char.skeleton
     match = match_clip(motion, sk)
     rt = retarget(motion, sk, start=start, fps=30)
