@@ -17,7 +17,11 @@ first 60 frames at 30 fps. Every shot of a reference with a loose garment
 ``<out>/motion_render/<shot>/`` and its contact sheet copied to
 ``<out>/motion_<shot>.png`` (the report embeds it).
 
-Run alone: ``python3 benchmarks/bench_motion.py [--full]``.
+Every clip: ``--every-clip`` runs every CMU clip, whole, at 30 fps on one
+target per reference (:data:`SWEEP_PAIRS`), the binding only, the measures on
+every second frame (about 5,000 frames, 16 minutes on one core).
+
+Run alone: ``python3 benchmarks/bench_motion.py [--full | --every-clip]``.
 """
 from __future__ import annotations
 
@@ -40,6 +44,9 @@ QUICK_PAIRS = [("ref_female_longskirt.usda", "body_female_heavy.usdc"),
 QUICK_CLIPS = ["cmu_07_01_walk.bvh", "cmu_05_12_dance_arms_held_high.bvh"]
 QUICK_FRAMES = 60
 MODES = ("bind", "lbs")
+SWEEP_PAIRS = [("ref_female_longskirt.usda", "body_female_heavy.usdc"),
+               ("ref_female.usda", "body_female_thin.usdc"),
+               ("ref_male.usda", "body_male_heavy.usdc")]
 
 
 def targets(sex: str) -> list[str]:
@@ -47,15 +54,18 @@ def targets(sex: str) -> list[str]:
     return sorted(p.name for p in USD_DIR.glob(f"body_{sex}_*.usdc"))
 
 
-def cases(full: bool) -> list[tuple[str, str, str]]:
+def cases(full: bool, every_clip: bool = False) -> list[tuple[str, str, str]]:
     """(clip, reference, target) triples."""
+    clips = sorted(p.name for p in BVH_DIR.glob("cmu*.bvh"))
     if full:
-        clips = sorted(p.name for p in BVH_DIR.glob("cmu*.bvh"))
         return [(c, r, t) for r, sex in REFERENCES.items() for t in targets(sex) for c in clips]
+    if every_clip:
+        return [(c, r, t) for r, t in SWEEP_PAIRS for c in clips]
     return [(c, r, t) for r, t in QUICK_PAIRS for c in QUICK_CLIPS]
 
 
-def run_shot(clip: str, ref_name: str, body_name: str, mode: str, out_dir: Path, frames: int | None):
+def run_shot(clip: str, ref_name: str, body_name: str, mode: str, out_dir: Path, frames: int | None,
+             measure_every: int = 1):
     """Animate one shot with the measures on every frame; returns (shot path,
     AnimateReport, seconds)."""
     from wearfit_usd.animate.try_on import AnimateOptions, animate
@@ -67,7 +77,8 @@ def run_shot(clip: str, ref_name: str, body_name: str, mode: str, out_dir: Path,
     end = None if frames is None else clip_end(motion, frames)
     shot = out_dir / f"motion_{Path(clip).stem}_{Path(ref_name).stem}_{Path(body_name).stem}_{mode}.usdc"
     t0 = time.perf_counter()
-    rep = animate(ref, tgt, motion, shot, AnimateOptions(start=1, end=end, fps=30, mode=mode, measure_every=1))
+    rep = animate(ref, tgt, motion, shot, AnimateOptions(start=1, end=end, fps=30, mode=mode,
+                                                         measure_every=measure_every))
     return shot, rep, time.perf_counter() - t0
 
 
@@ -127,18 +138,20 @@ def contact_sheet(shot: Path, out_dir: Path) -> Path | None:
     return png
 
 
-def run(full: bool, out_dir: Path) -> list[dict]:
+def run(full: bool, out_dir: Path, every_clip: bool = False) -> list[dict]:
     from wearfit_usd.progress import set_verbosity
     out_dir.mkdir(parents=True, exist_ok=True)
     set_verbosity(0)
     rows = []
-    for clip, ref, body in cases(full):
-        for mode in MODES:
-            shot, rep, secs = run_shot(clip, ref, body, mode, out_dir, None if full else QUICK_FRAMES)
+    whole = full or every_clip
+    for clip, ref, body in cases(full, every_clip):
+        for mode in (("bind",) if every_clip else MODES):
+            shot, rep, secs = run_shot(clip, ref, body, mode, out_dir, None if whole else QUICK_FRAMES,
+                                       measure_every=2 if every_clip else 1)
             rows += item_rows(clip, ref, body, mode, rep, secs)
             if ref in LOOSE:
                 contact_sheet(shot, out_dir)
-            if full:  # thousands of frames: keep the disk use bounded
+            if whole:  # thousands of frames: keep the disk use bounded
                 shot.unlink(missing_ok=True)
                 shutil.rmtree(shot.with_suffix(".clips"), ignore_errors=True)
     return rows + summary_rows(rows)
@@ -147,6 +160,6 @@ def run(full: bool, out_dir: Path) -> list[dict]:
 if __name__ == "__main__":
     full = "--full" in sys.argv
     out = DEFAULT_OUT
-    rows = run(full, out)
+    rows = run(full, out, every_clip="--every-clip" in sys.argv)
     print(format_table(rows))
     (out / "motion.json").write_text(json.dumps(rows, indent=2, default=float))
