@@ -38,7 +38,8 @@ def test_json_cross_product_relative_paths(tmp_path):
     assert first == Job("dress", tmp_path / "ref_a.usda", tmp_path / "bodies" / "b1.usdc")
     anim = [j for j in js.jobs if j.product == "animate"]
     assert anim[0].clip == Clip(tmp_path / "walk.bvh", 1, 61)
-    assert anim[1].clip == Clip(tmp_path / "run.bvh", 0, None)
+    assert anim[1].clip == Clip(tmp_path / "run.bvh", None, None)  # start "auto" (motion.clip_start)
+    assert anim[1].id == "animate/ref_a__b1__run_auto-"
     assert {j.reference for j in js.jobs} == {tmp_path / "ref_a.usda", Path("/abs/ref_b.usda")}
     assert anim[0].id == "animate/ref_a__b1__walk_1-61"
     assert js.options["format"] == "usd"
@@ -88,6 +89,8 @@ def test_csv_rows(tmp_path):
     ("bad.json", '{"references": ["a.usda"], "targets": ["b"], "clips": [{"path": "c.bvh", "start": "x"}]}',
      "clips[0].start must be an integer"),
     ("bad.json", '{"references": ["a.usda"], "targets": ["b"], "clips": [{"path": "c.bvh", "start": 5, "end": 5}]}',
+     "is empty"),
+    ("bad.json", '{"references": ["a.usda"], "targets": ["b"], "clips": [{"path": "c", "start": "auto", "end": 0}]}',
      "is empty"),
     ("bad.json", '{"references": ["a.usda"], "targets": ["b"], "options": {"format": "obj"}}', "options.format"),
     ("bad.csv", "reference,clip\nr.usda,c.bvh\n", "lacks the columns ['target']"),

@@ -17,6 +17,9 @@ expands to the cross product (a reference given as a mapping with its own
 ``"jobs"``: ``[{"reference": ..., "target": ..., "clips": [...], "products": [...]}]``.
 A CSV file holds explicit rows with the columns ``reference,target`` and
 optionally ``clip,start,end,products`` (products separated by ``;`` or spaces).
+A clip's ``start`` is a frame number or ``"auto"`` (the default, as ``wearfit
+animate --start auto``: frame 1 when frame 0 is a converter's rest pose, see
+:mod:`motion.clip_start`, decided when the clip is read).
 Relative paths resolve against the job file's folder. Files are not opened
 here: a missing input fails its own jobs when the batch runs.
 """
@@ -39,12 +42,13 @@ DEFAULT_OPTIONS = {"k": 5, "format": "usd", "fps": 30.0, "preview_size": [320, 4
 class Clip:
     """A BVH clip and its frame range (``end`` exclusive, None = to the end)."""
     path: Path
-    start: int = 0
+    start: int | None = None  # None: "auto" (motion.clip_start.leading_rest_frames when the clip is read)
     end: int | None = None
 
     @property
     def label(self) -> str:
-        rng = f"{self.start}-{self.end}" if self.end is not None else f"{self.start}-"
+        first = "auto" if self.start is None else self.start
+        rng = f"{first}-{self.end}" if self.end is not None else f"{first}-"
         return f"{self.path.stem}_{rng}"
 
 
@@ -99,7 +103,8 @@ def _int(src: Path, value, what: str) -> int | None:
     if value is None or value == "":
         return None
     if isinstance(value, bool) or not isinstance(value, (int, str)) or not re.fullmatch(r"-?\d+", str(value).strip()):
-        _fail(src, f"{what} must be an integer frame number, got {value!r}")
+        alt = " or auto" if what.endswith(".start") else ""
+        _fail(src, f"{what} must be an integer frame number{alt}, got {value!r}")
     return int(str(value).strip())
 
 
@@ -113,9 +118,10 @@ def _clip(src: Path, value, where: str) -> Clip:
         _fail(src, f"{where}: unknown keys {sorted(unknown)} (known: path, start, end)")
     if "path" not in value:
         _fail(src, f"{where}: a clip needs a 'path'")
-    start = _int(src, value.get("start"), f"{where}.start") or 0
+    raw = value.get("start")
+    start = None if isinstance(raw, str) and raw.strip().lower() == "auto" else _int(src, raw, f"{where}.start")
     end = _int(src, value.get("end"), f"{where}.end")
-    if start < 0 or (end is not None and end <= start):
+    if (start is not None and start < 0) or (end is not None and end <= (start or 0)):
         _fail(src, f"{where}: the frame range {start}..{end} is empty or negative")
     return Clip(_path(src, value["path"], f"{where}.path"), start, end)
 
