@@ -8,11 +8,13 @@ less), vertices far from it do not move.
 from __future__ import annotations
 
 import numpy as np
+import pytest
+import scipy.sparse as sp
 import trimesh
 
 from wearfit_usd.animate.penetration_guard import PenetrationGuard
 from wearfit_usd.geometry.closest import SurfaceQuery
-from wearfit_usd.geometry.mesh import edges
+from wearfit_usd.geometry.mesh import adjacency, edges
 
 
 def _scene():
@@ -36,7 +38,7 @@ def test_pushes_spread_over_the_item_edges():
     bp, bf, bump, sp_, sf = _scene()
     e = edges(sf)
     plain = PenetrationGuard(bf, bp, sp_, margin=0.001)
-    spread = PenetrationGuard(bf, bp, sp_, margin=0.001, item_edges=e)
+    spread = PenetrationGuard(bf, bp, sp_, margin=0.001, item_neighbours=adjacency(sf, len(sp_)))
     out0, _ = plain.apply(bump, sp_)
     out1, _ = spread.apply(bump, sp_)
     q = SurfaceQuery(bf, bump)
@@ -59,5 +61,7 @@ def test_pushes_spread_over_the_item_edges():
 def test_without_edges_the_guard_is_unchanged():
     bp, bf, bump, sp_, sf = _scene()
     a, _ = PenetrationGuard(bf, bp, sp_).apply(bump, sp_)
-    b, _ = PenetrationGuard(bf, bp, sp_, item_edges=np.zeros((0, 2), np.int64)).apply(bump, sp_)
+    b, _ = PenetrationGuard(bf, bp, sp_, item_neighbours=sp.csr_matrix((len(sp_), len(sp_)))).apply(bump, sp_)
     np.testing.assert_array_equal(a, b)
+    with pytest.raises(ValueError, match="item_neighbours"):
+        PenetrationGuard(bf, bp, sp_, item_neighbours=adjacency(sf, len(sp_))[:10, :10])

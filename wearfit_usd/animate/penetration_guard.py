@@ -36,8 +36,9 @@ class PenetrationGuard:
     vertex search from last frame's answer; the numpy path gives the same
     numbers.
 
-    With ``item_edges`` (E, 2) (the guarded items' edges) every frame's
-    pushes are spread over the item (:meth:`_smoothed`): pushed alone, a
+    With ``item_neighbours`` (M, M) sparse, the guarded items' vertex
+    adjacency (a dress plan's ``mesh.neighbours``), every frame's pushes are
+    spread over the item (:meth:`_smoothed`): pushed alone, a
     vertex stood out of its neighbours in a spike and the edges round it
     tore (the guard alone took the hot pants and top of
     ref_female_longskirt walking on body_female_heavy from stretch p99
@@ -51,14 +52,13 @@ class PenetrationGuard:
 
     def __init__(self, body_faces: np.ndarray, body_points0: np.ndarray, item_points0: np.ndarray,
                  margin: float = 0.001, decay: float = 0.7, radius: float = 0.03,
-                 compiled: bool | None = None, item_edges: np.ndarray | None = None):
+                 compiled: bool | None = None, item_neighbours: sp.spmatrix | None = None):
         self.faces = np.ascontiguousarray(body_faces, dtype=np.int64)
         self._walk = None
-        if item_edges is not None and len(item_edges):
-            e = np.asarray(item_edges, dtype=np.int64)
-            m = len(item_points0)
-            a = sp.coo_matrix((np.ones(2 * len(e)), (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])),
-                              shape=(m, m)).tocsr()
+        if item_neighbours is not None and item_neighbours.shape != (len(item_points0),) * 2:
+            raise ValueError(f"item_neighbours is {item_neighbours.shape} for {len(item_points0)} item points")
+        if item_neighbours is not None and item_neighbours.nnz:
+            a = item_neighbours.tocsr().astype(np.float64)
             a.data[:] = 1.0
             deg = np.maximum(np.asarray(a.sum(axis=1)).ravel(), 1.0)
             self._walk = (sp.diags(1.0 / deg) @ a).tocsr()  # neighbour average
@@ -216,7 +216,7 @@ class PenetrationGuard:
     SMOOTH_ITERATIONS = 3
 
     def _smoothed(self, before: np.ndarray, out: np.ndarray) -> np.ndarray:
-        """The pushes spread over the item's edges (with ``item_edges``):
+        """The pushes spread over the item's edges (with ``item_neighbours``):
         the displacement ``out - before`` averaged with its neighbours'
         (SMOOTH_ITERATIONS Jacobi steps, half own, half neighbours'), then
         every pushed vertex given back what it lost along its own push."""

@@ -36,10 +36,10 @@ from ..dress.plan import DressPlan
 from ..dress.plan import plan as plan_dress
 from ..errors import NonFiniteError, USDInputError
 from ..fit.body_fit import fit_character
-from ..geometry.mesh import edges
 from ..io.usd_carry import CarryPlan
 from ..io.usd_shot import ShotWriter
 from ..model import Character
+from ..motion.clip_start import leading_rest_frames
 from ..motion.floor import place_on_floor
 from ..motion.retarget import BLOCK, retarget, retarget_stream
 from ..motion.skinning import Skinner, skin_points, skinning_matrices
@@ -55,7 +55,7 @@ from .skin_transfer import transfer_weights
 @dataclass
 class AnimateOptions:
     k: int = 5
-    start: int = 0
+    start: int | None = 0             # first clip frame; None: "auto" (motion.clip_start.leading_rest_frames)
     end: int | None = None
     fps: float | None = 30.0          # None = the clip's native rate
     mode: str = "bind"                # "bind" or "lbs"
@@ -138,7 +138,13 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
     t0 = time.perf_counter()
     # frames computed a block at a time in the frame loop (memory flat in the
     # shot's length); the block's SkelAnimation samples are written with it
-    rt = retarget_stream(motion, target.skeleton, mapping=opt.mapping, start=opt.start, end=opt.end,
+    start = opt.start
+    if start is None:
+        start = leading_rest_frames(motion)
+        if start:
+            info(f"{motion.path}: frame 0 is the converter's rest pose (a T-pose): the shot starts at clip frame "
+                 f"{start} (--start 0 keeps it)")
+    rt = retarget_stream(motion, target.skeleton, mapping=opt.mapping, start=start, end=opt.end,
                          fps=opt.fps, max_frames=opt.max_frames)
     rt, _ = place_on_floor(rt, target.skeleton, target.body, opt.floor)
     world = _FrameWorlds(rt)
@@ -169,8 +175,8 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
     else:
         # dressed in frame 0's pose: the reference is posed through its own
         # rig, its items follow it, it is fitted onto the posed target
-        ref_rt = retarget(motion, reference.skeleton, mapping=opt.mapping, start=opt.start,
-                          end=opt.start + 1, fps=None)
+        ref_rt = retarget(motion, reference.skeleton, mapping=opt.mapping, start=start,
+                          end=start + 1, fps=None)
         ref_world0 = ref_rt.world[0]
         ref_body0 = skin_points(reference.body.points, reference.body.joint_indices,
                                 reference.body.joint_weights,
@@ -258,8 +264,11 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
         frame0_items = all_base.copy()
         frame0_items[rigid.rows] = rigid.skinner(skin_mats(0))
     if cloth is None or opt.measure_every:
+        # it pushes (and spreads its pushes over the items) in bind mode when
+        # no other guard does; else it only counts penetrations
+        pushes = opt.mode == "bind" and cloth is None and rigid is None
         guard = PenetrationGuard(body.faces, base_body, frame0_items, margin=opt.penetration_margin,
-                                 item_edges=_item_edges(items) if opt.mode == "bind" else None)
+                                 item_neighbours=frame_plan.mesh.neighbours if pushes else None)
     if cloth is not None or rigid is not None:
         # the cloth keeps its own distance from the body: the guard would pull
         # it back to its frame-0 clearance; "new penetration" still counts it.
@@ -271,8 +280,9 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
         if rigid is not None:
             keep[rigid.rows] = False
         pushed_rows = np.flatnonzero(keep)
+        nb = frame_plan.mesh.neighbours.tocsr()
         push_guard = PenetrationGuard(body.faces, base_body, all_base[pushed_rows], margin=opt.penetration_margin,
-                                      item_edges=_sub_edges(_item_edges(items), pushed_rows, len(all_base)))
+                                      item_neighbours=nb[pushed_rows][:, pushed_rows])
     measures = None
     if opt.measure_every and opt.motion_measures:
         t0 = time.perf_counter()
@@ -353,24 +363,6 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
                         "write_fps": n_frames / max(t_write, 1e-9),
                         "total": time.perf_counter() - t_all})
     return rep
-
-
-def _item_edges(items: list) -> np.ndarray:
-    """(E, 2) the edges of the items, stacked (indices into the stacked points)."""
-    out, a = [], 0
-    for m in items:
-        out.append(edges(m.faces) + a)
-        a += m.n_points
-    return np.concatenate(out) if out else np.zeros((0, 2), dtype=np.int64)
-
-
-def _sub_edges(e: np.ndarray, rows: np.ndarray, n: int) -> np.ndarray:
-    """The edges ``e`` between vertices of ``rows`` (of ``n``), renumbered
-    as positions in ``rows``."""
-    pos = np.full(n, -1, dtype=np.int64)
-    pos[rows] = np.arange(len(rows))
-    e = pos[e]
-    return e[(e >= 0).all(axis=1)]
 
 
 def _hidden_body(target: Character, base_body, items, opt: AnimateOptions):

@@ -51,7 +51,6 @@ from ..fit.body_fit import fit_character
 from ..io.bvh import read_bvh
 from ..io.usd import read_character, write_character
 from ..io.usd_carry import CarryPlan
-from ..motion.clip_start import leading_rest_frames
 from ..progress import set_verbosity
 from ..render.media import write_png
 from .cache import Cache, atomic_write_bytes, file_digest, publish, result_key
@@ -238,8 +237,7 @@ def task_animate(reference, target, plan_key: str, meta: dict) -> dict:
         if not Path(clip["path"]).exists():
             raise JobError(f"{clip['path']}: file not found")
         motion = read_bvh(clip["path"])
-        start = clip["start"] if clip["start"] is not None else leading_rest_frames(motion)
-        opts = AnimateOptions(k=meta["k"], start=start, end=clip["end"], fps=meta["fps"],
+        opts = AnimateOptions(k=meta["k"], start=clip["start"], end=clip["end"], fps=meta["fps"],
                               measure_every=meta["measure_every"], hidden_body="subset",
                               carry_plan=CarryPlan.for_dress(reference, target, reference.items))
         p, built = _plan_of(reference, plan_key, meta["k"])

@@ -99,12 +99,11 @@ def _path(src: Path, value, what: str) -> Path:
     return p if p.is_absolute() else (src.parent / p).resolve()
 
 
-def _int(src: Path, value, what: str) -> int | None:
+def _int(src: Path, value, what: str, also: str = "") -> int | None:
     if value is None or value == "":
         return None
     if isinstance(value, bool) or not isinstance(value, (int, str)) or not re.fullmatch(r"-?\d+", str(value).strip()):
-        alt = " or auto" if what.endswith(".start") else ""
-        _fail(src, f"{what} must be an integer frame number{alt}, got {value!r}")
+        _fail(src, f"{what} must be an integer frame number{also}, got {value!r}")
     return int(str(value).strip())
 
 
@@ -119,7 +118,8 @@ def _clip(src: Path, value, where: str) -> Clip:
     if "path" not in value:
         _fail(src, f"{where}: a clip needs a 'path'")
     raw = value.get("start")
-    start = None if isinstance(raw, str) and raw.strip().lower() == "auto" else _int(src, raw, f"{where}.start")
+    start = None if isinstance(raw, str) and raw.strip().lower() == "auto" else _int(src, raw, f"{where}.start",
+                                                                                      also=" or auto")
     end = _int(src, value.get("end"), f"{where}.end")
     if (start is not None and start < 0) or (end is not None and end <= (start or 0)):
         _fail(src, f"{where}: the frame range {start}..{end} is empty or negative")

@@ -134,13 +134,6 @@ def run(args) -> int:
         from ..motion.joint_maps import load_user_map
         mapping = load_user_map(args.mapping, source_names=motion.joint_names,
                                 target_names=target.skeleton.joint_names if target.skeleton else None)
-    start = args.start
-    if start is None:
-        from ..motion.clip_start import leading_rest_frames
-        start = leading_rest_frames(motion)
-        if start:
-            info(f"{args.clip}: frame 0 is the converter's rest pose (a T-pose): the shot starts at clip frame "
-                 f"{start} (--start 0 keeps it)")
     every = args.measure_every
     if every is None:
         every = 1 if (args.report or args.strict) else 0
@@ -148,7 +141,7 @@ def run(args) -> int:
         raise InputError(None, f"--measure-every must be 0 or more, got {every}")
     if args.strict and every == 0:
         raise InputError(None, "--strict needs measuring: --measure-every 0 turns it off")
-    opts = AnimateOptions(k=args.k, start=start, end=args.end, fps=fps, mode=args.mode,
+    opts = AnimateOptions(k=args.k, start=args.start, end=args.end, fps=fps, mode=args.mode,
                           mapping=mapping, clip_frames=args.clip_frames, velocities=args.velocities,
                           items="both" if args.write_skinned_items and args.items == "points" else args.items,
                           dress_pose=args.dress_pose,
