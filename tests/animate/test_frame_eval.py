@@ -44,6 +44,7 @@ def _check(character, seeds=(0, 1)):
 def test_matches_apply_on_the_real_reference(ref_male):
     pl = _check(ref_male)
     assert pl.rigid_groups and pl.smoother is not None and len(pl.smoother.free) > 0
+    assert pl.smoother.patches  # the loose parts are smoothed in the frames of the body under them
 
 
 def test_matches_apply_on_the_sample_body():

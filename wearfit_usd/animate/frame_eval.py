@@ -3,7 +3,8 @@ once and called every animation frame.
 
 :func:`dress.apply.apply` with ``penetration=False`` evaluates a plan in three
 steps: the binding (one sparse product), the rigid parts (one similarity
-per group) and the loose-part smoothing (one sparse solve). It returns the
+per group) and the loose-part smoothing (one sparse solve, in the frames of
+the body under each loose patch). It returns the
 binding's free result too, and allocates as it goes. An animation needs only
 the final points, frame after frame: :class:`FrameEvaluator` skips the
 binding rows the rigid parts overwrite, writes every step into one output
@@ -42,9 +43,6 @@ class FrameEvaluator:
         sm = plan.smoother
         self._smooth = sm.active
         if self._smooth:
-            ref = np.asarray(plan.ref_points, dtype=np.float64)
-            self._ref_free = np.ascontiguousarray(ref[sm.free])
-            self._ref_boundary = np.ascontiguousarray(ref[sm.boundary])
             lap = sm.boundary_coupling.tocsr()
             lap.sort_indices()
             self._lap = lap
@@ -67,7 +65,8 @@ class FrameEvaluator:
         if self._smooth:
             sm = plan.smoother
             lap = self._lap
-            diffusion_rhs(out, self._free, self._boundary, self._ref_free, self._ref_boundary,
-                          sm.mass, lap.indptr, lap.indices, lap.data, self._rhs)
-            add_rows(out, self._free, self._ref_free, np.ascontiguousarray(sm.solver.solve(self._rhs)))
+            ref_free, ref_boundary = sm.frame_reference(plan.ref_points, p, plan.ref_body)
+            diffusion_rhs(out, self._free, self._boundary, np.ascontiguousarray(ref_free),
+                          np.ascontiguousarray(ref_boundary), sm.mass, lap.indptr, lap.indices, lap.data, self._rhs)
+            add_rows(out, self._free, ref_free, np.ascontiguousarray(sm.solver.solve(self._rhs)))
         return out

@@ -258,7 +258,7 @@ def evaluate(plan_: DressPlan, body_points: np.ndarray, skirt_heights_kept: bool
         s, rot, t = parts.transforms(body_points)
         parts.place(s, rot, t, pts)
         rigid_maps = [(gv, s[i] * rot[i]) for i, gv in enumerate(parts.groups)]
-    pts = plan_.smoother(pts, smooth_from)
+    pts = plan_.smoother(pts, smooth_from, body_points, plan_.ref_body)
     return Evaluation(free, pts, rigid_maps)
 
 
@@ -383,7 +383,8 @@ def push_out_pass(plan_: DressPlan, query: SurfaceQuery, points: np.ndarray, tar
     """
     pts, moved = push_out(query, points, target, mask=candidates, neighbours=ring)
     if np.any(moved & (plan_.looseness > 0)):
-        pts = plan_.smoother(pts, plan_.ref_points)
+        body = query.points if query.points is not None and len(query.points) == len(plan_.ref_body) else None
+        pts = plan_.smoother(pts, plan_.ref_points, body, plan_.ref_body)
         again = candidates | moved
         pts, moved_again = push_out(query, pts, target, mask=again, neighbours=ring)
         moved |= moved_again

@@ -625,6 +625,7 @@ def plan(ref: Character, k: int = 5, use_regions: bool = True, rigid="auto", aut
         rigid_groups = [g for g, _ in keep]
         rigid_items = [n for n in rigid_items if n not in free_items]
     loose = loose_weights(items, offsets, skirts, ref_clear, rigid_groups, labels)
+    bound = (binding.triangles, binding.weights, body.faces)  # the loose parts' body patches
     t3 = time.perf_counter()
     order = [(i, j, g) for i, j, g in layer_order(items, offsets, pts, ref_clear)
              if items[i].name not in rigid_items]  # rigid parts move as a whole
@@ -633,6 +634,6 @@ def plan(ref: Character, k: int = 5, use_regions: bool = True, rigid="auto", aut
                      body_query=ref_query, regions=item_regions, mesh=mesh,
                      rigid_groups=rigid_groups, rigid_items=rigid_items,
                      insets_kept=group_mask(rigid_groups, len(pts)),
-                     looseness=loose, smoother=LooseSmoother(mesh.neighbours, loose),
+                     looseness=loose, smoother=LooseSmoother(mesh.neighbours, loose, bound=bound),
                      layers=layer_gaps(ref_query, pts, offsets, order, ref_clear, foot=foot["point"]),
                      timings={"regions_s": t1 - t0, "bind_s": t2 - t1, "plan_rest_s": t3 - t2})
