@@ -83,7 +83,8 @@ def test_long_skirt_near_makehuman_helper(data_dir, usd_dir, shape, limit):
     the back (p95 97 mm), then the binding kept it wide (17.7 mm); on the
     13 % shorter body the hem, lengthened as the legs' edges, hung 4.5 cm
     lower than the helper's (p95 45.7 mm): the skirt now keeps its height
-    over the floor in proportion to its top's (thin 14.6, short 23.6 mm)."""
+    over the floor in proportion to its top's (thin 14.6, short 23.6 mm;
+    smoothed in the body's frames, 15.9 and 23.1 mm)."""
     ref = read_character(usd_dir / "ref_female_longskirt.usda")
     skirt = next(i for i, m in enumerate(ref.items) if "skirt" in m.name)
     _, idx = cKDTree(to_internal(shape_points(data_dir / "makehuman", "female_average"))).query(
