@@ -22,6 +22,7 @@ from .rigid_parts import RigidParts
 LOOSE_START = 0.01   # m: vertices farther than this from the body start to be smoothed
 LOOSE_FULL = 0.04    # m: fully smoothed from here on
 LOOSE_ITERATIONS = 40  # diffusion time, in half-steps of neighbour averaging
+PATCH_MIN = 8  # vertices a loose patch (with its tight neighbours) needs for a frame of its own
 
 
 def looseness(ref_clearance: np.ndarray, skirt_mask: np.ndarray | None = None) -> np.ndarray:
@@ -84,7 +85,13 @@ class LooseSmoother:
     tight neighbours, sorted; mass: (U,) ``2 deg / w``;
     boundary_coupling: (U, B) sparse ``-T L_UB``; solver: the factorised
     :class:`SPDSolver` of ``diag(mass) + T L_UU``, None when no vertex is
-    loose (:attr:`active` is then False and the smoother returns its input).
+    loose (:attr:`active` is then False and the smoother returns its input);
+    patches: per loose patch with a frame, (item vertices (P,), the body
+    vertices they are bound to (Q,), their summed binding weights (Q,)).
+
+    ``bound``: the plan's binding as (triangles (M, k), weights (M, k), body
+    faces (T, 3)); without it there are no patches and the displacement is
+    taken from the reference as it is.
     """
 
     def __init__(self, neighbours: sp.spmatrix, weight: np.ndarray,
@@ -149,7 +156,8 @@ class LooseSmoother:
         of the loose vertices (U, 3) and of their tight neighbours (B, 3,
         one per patch they border), each loose patch moved by the rigid
         motion of the body under it from ``ref_body`` to ``body_points``
-        (N, 3) (the reference itself without bodies or patches)."""
+        (N, 3) (the reference itself without bodies or patches). The arrays
+        are reused by the next call."""
         if ref_points is not self._ref_src:  # per-frame calls pass the same reference
             self._ref_src = ref_points
             self._ref_u = np.take(ref_points, self.free, axis=0)
@@ -200,8 +208,6 @@ class LooseSmoother:
         out = np.array(points, dtype=np.float64, order="C", copy=True)
         return assign_rows(out, u, ref_u + self.solver.solve(rhs))
 
-
-PATCH_MIN = 8  # vertices a loose patch (with its tight neighbours) needs for a frame of its own
 
 
 def off_skin(res: dict, rows, clearance: np.ndarray) -> np.ndarray:
