@@ -1,15 +1,18 @@
 """The loose-part smoothing takes its displacement in the frame of the body
 under each loose patch: a part turned with the body keeps its shape, a body
 of another shape that does not turn is smoothed as before."""
+from dataclasses import replace
+
 import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import Delaunay
 from scipy.spatial.transform import Rotation
 
 from wearfit_usd.dress.apply import apply
-from wearfit_usd.dress.corrections import LooseSmoother, bound_patch
+from wearfit_usd.dress.binding import bind
+from wearfit_usd.dress.corrections import LooseSmoother
 from wearfit_usd.dress.plan import plan
-from wearfit_usd.geometry.mesh import edges
+from wearfit_usd.geometry.mesh import adjacency, edges
 from wearfit_usd.io.bvh import read_bvh
 from wearfit_usd.motion.retarget import retarget
 from wearfit_usd.motion.skinning import skin_points, skinning_matrices
@@ -19,19 +22,16 @@ def _flap(seed=0):
     """An unevenly meshed flap (x, y in [0, 1], a little relief in z) whose
     top row is tight (weight 0) and the rest loose, bound to one body
     triangle above it. Returns points (M, 3), neighbours (M, M), weight
-    (M,), bound (triangles, weights, faces), body points (3, 3)."""
+    (M,), the binding, body points (3, 3)."""
     rng = np.random.default_rng(seed)
     xy = rng.uniform(0.0, 1.0, size=(160, 2))
     xy = np.vstack([xy, np.c_[np.linspace(0, 1, 12), np.ones(12)]])  # the top row
     faces = Delaunay(xy).simplices
     pts = np.c_[xy, 0.05 * np.sin(7 * xy[:, 0]) * np.cos(5 * xy[:, 1])]
-    e = edges(faces)
-    m = len(pts)
-    nb = sp.coo_matrix((np.ones(2 * len(e)), (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), shape=(m, m)).tocsr()
+    nb = adjacency(faces, len(pts))
     weight = np.where(xy[:, 1] > 0.97, 0.0, 1.0)
     body = np.array([[0.0, 1.2, 0.0], [1.0, 1.2, 0.0], [0.5, 1.3, 0.2]])
-    bound = (np.zeros((m, 1), dtype=np.int64), np.ones((m, 1)), np.array([[0, 1, 2]]))
-    return pts, nb, weight, bound, body
+    return pts, nb, weight, bind(body, np.array([[0, 1, 2]]), pts, k=1), body
 
 
 def test_a_turned_part_keeps_its_shape():
@@ -60,14 +60,22 @@ def test_a_body_that_does_not_turn_is_smoothed_as_before():
     assert np.abs(a - bumpy - [0.0, 0.0, 0.02]).max() > 1e-3  # it did smooth
 
 
-def test_bound_patch_sums_the_binding_weights_per_corner():
+def _bound_to(body, faces, pts, triangles, weights):
+    """A binding of ``pts`` to ``body`` with the given triangles and blend
+    weights (M, k) (a real :class:`Binding`, its rows replaced)."""
+    return replace(bind(body, faces, pts, k=1), triangles=np.asarray(triangles), weights=np.asarray(weights))
+
+
+def test_body_patch_sums_the_binding_weights_per_corner():
+    body = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [1.0, 1.0, 0.0]])
     faces = np.array([[0, 1, 2], [2, 1, 3]])
-    triangles = np.array([[0, 1], [1, 1], [0, 0]])
-    weights = np.array([[0.75, 0.25], [0.5, 0.5], [1.0, 0.0]])
-    verts, w = bound_patch(np.array([0, 1]), triangles, weights, faces)
+    b = _bound_to(body, faces, np.zeros((3, 3)) + 0.1, [[0, 1], [1, 1], [0, 0]], [[0.75, 0.25], [0.5, 0.5], [1.0, 0.0]])
+    verts, w = b.body_patch(np.array([0, 1]))
     np.testing.assert_array_equal(verts, [0, 1, 2, 3])
-    # triangle 0 carries 0.75 (vertex 0), triangle 1 carries 1.25 (vertex 3)
-    np.testing.assert_allclose(w, [0.25, 2.0 / 3.0, 2.0 / 3.0, 1.25 / 3.0])
+    # triangle 0 carries 0.75 (to vertices 0, 1, 2), triangle 1 carries 1.25 (to 2, 1, 3)
+    np.testing.assert_allclose(w, [0.75, 2.0, 2.0, 1.25])
+    verts, w = b.body_patch(np.array([2]))  # a weight-0 triangle's own corners are left out
+    np.testing.assert_array_equal(verts, [0, 1, 2])
 
 
 def test_each_loose_patch_has_its_own_frame_and_boundary_values():
@@ -79,18 +87,18 @@ def test_each_loose_patch_has_its_own_frame_and_boundary_values():
     nb = sp.coo_matrix((np.ones(2 * len(e)), (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), shape=(m, m)).tocsr()
     weight = np.ones(m)
     weight[[0, 21]] = 0.0
+    pts = np.c_[np.r_[0.0, np.linspace(0.1, 1.0, 10), -np.linspace(0.1, 1.0, 10), 0.0, 0.0, 0.0],
+                np.r_[0.0, np.zeros(20), 1.0, 0.9, 0.8], np.full(m, 0.5)]  # turned about the origin, 0.5 m off
+    body = np.array([[0.0, 0.1, 0.5], [0.0, 0.1, 0.6], [0.1, 0.15, 0.5], [-0.1, 0.1, 0.55]])
     faces = np.array([[0, 1, 2], [1, 2, 3]])
     triangles = np.where(np.arange(m) < 11, 0, 1)[:, None]
-    sm = LooseSmoother(nb, weight, bound=(triangles, np.ones((m, 1)), faces))
+    sm = LooseSmoother(nb, weight, bound=_bound_to(body, faces, pts, triangles, np.ones((m, 1))))
     groups = sorted(sorted(g.tolist()) for g, _, _ in sm.patches)
     assert groups == [list(range(0, 11)), [0] + list(range(11, 21))]
     # the shared tight vertex is a boundary value of each chain, in its frame
     assert sorted(sm.boundary.tolist()) == [0, 0, 21]
     assert sm.boundary_coupling.shape == (len(sm.free), 3)
     # the first chain turned with the body under it keeps its shape
-    pts = np.c_[np.r_[0.0, np.linspace(0.1, 1.0, 10), -np.linspace(0.1, 1.0, 10), 0.0, 0.0, 0.0],
-                np.r_[0.0, np.zeros(20), 1.0, 0.9, 0.8], np.full(m, 0.5)]  # turned about the origin, 0.5 m off
-    body = np.array([[0.0, 0.1, 0.5], [0.0, 0.1, 0.6], [0.1, 0.15, 0.5], [-0.1, 0.1, 0.55]])
     ra, rb = Rotation.from_rotvec([0, 0, 0.6]).as_matrix(), Rotation.from_rotvec([0, 0.9, -0.4]).as_matrix()
     out = pts.copy()
     out[0:11] = pts[0:11] @ ra

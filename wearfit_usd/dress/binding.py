@@ -141,6 +141,16 @@ class Binding:
         out = self.compact @ st.reshape(len(st), f * 3)
         return out.reshape(-1, f, 3).transpose(1, 0, 2)
 
+    def body_patch(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The body vertices the item vertices ``rows`` (P,) are bound to,
+        (Q,) sorted, and their summed binding weights (Q,) (each bound
+        triangle's weight given to each of its corners; vertices of weight 0
+        left out)."""
+        corner = self.faces[self.triangles[rows]]  # (P, k, 3)
+        w = np.bincount(corner.ravel(), weights=np.repeat(np.asarray(self.weights[rows]).ravel(), 3))
+        verts = np.flatnonzero(w > 0)
+        return verts, w[verts]
+
     def clearance_offsets(self) -> np.ndarray:
         """(M,) weighted offset along the bound triangles' normals (an
         estimate of each vertex's clearance on the reference body)."""

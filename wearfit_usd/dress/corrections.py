@@ -89,13 +89,13 @@ class LooseSmoother:
     patches: per loose patch with a frame, (item vertices (P,), the body
     vertices they are bound to (Q,), their summed binding weights (Q,)).
 
-    ``bound``: the plan's binding as (triangles (M, k), weights (M, k), body
-    faces (T, 3)); without it there are no patches and the displacement is
-    taken from the reference as it is.
+    ``bound``: the plan's :class:`binding.Binding` (the body vertices under
+    each patch: :meth:`Binding.body_patch`); without it there are no
+    patches and the displacement is taken from the reference as it is.
     """
 
     def __init__(self, neighbours: sp.spmatrix, weight: np.ndarray,
-                 time_steps: int = LOOSE_ITERATIONS, bound: tuple | None = None):
+                 time_steps: int = LOOSE_ITERATIONS, bound=None):
         w = np.asarray(weight, dtype=np.float64)
         idx = np.flatnonzero(w > 0)
         self.free = self.boundary = self.ring = np.zeros(0, dtype=np.int64)
@@ -123,10 +123,11 @@ class LooseSmoother:
         self.solver.factor((sp.diags(self.mass) + t * lap_uu).tocsc())
         # the connected loose patches; a tight vertex next to several is one
         # boundary value per patch (each in its patch's frame)
-        n_patch, patch = connected_components(a[idx][:, idx], directed=False)
-        patch = patch.astype(np.int64)
         if bound is None:
             n_patch, patch = 1, np.zeros(len(idx), dtype=np.int64)
+        else:
+            n_patch, patch = connected_components(a[idx][:, idx], directed=False)
+            patch = patch.astype(np.int64)
         key = coupling.col.astype(np.int64) * n_patch + patch[coupling.row]
         keys, col = np.unique(key, return_inverse=True)
         self.boundary = tight[keys // n_patch]
@@ -137,7 +138,6 @@ class LooseSmoother:
         self._boundary_frame = np.full(len(keys), -1, dtype=np.int64)
         if bound is None:
             return
-        triangles, weights, faces = bound
         for c in range(n_patch):
             rows_u, rows_b = np.flatnonzero(patch == c), np.flatnonzero(boundary_patch == c)
             if len(rows_u) + len(rows_b) < PATCH_MIN:
@@ -145,7 +145,7 @@ class LooseSmoother:
             self._free_frame[rows_u] = len(self.patches)
             self._boundary_frame[rows_b] = len(self.patches)
             g = np.concatenate([idx[rows_u], self.boundary[rows_b]])
-            self.patches.append((g, *bound_patch(g, triangles, weights, faces)))
+            self.patches.append((g, *bound.body_patch(g)))
         # vertices without a frame of their own take the identity, appended last
         self._free_frame[self._free_frame < 0] = len(self.patches)
         self._boundary_frame[self._boundary_frame < 0] = len(self.patches)
@@ -366,16 +366,3 @@ def spread_corrections(ref_pts: np.ndarray, before: np.ndarray, after: np.ndarra
     out[zi] = before[zi] + dz
     spread[zi] = np.linalg.norm(dz - d, axis=1) > 1e-12
     return out, spread
-
-
-def bound_patch(rows: np.ndarray, triangles: np.ndarray, weights: np.ndarray,
-                faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The body vertices item vertices ``rows`` (P,) are bound to and their
-    summed binding weights: ``triangles`` (M, k) and ``weights`` (M, k) of a
-    :class:`binding.Binding`, ``faces`` (T, 3) the body's. Returns body
-    vertex indices (Q,) and weights (Q,) (each triangle's weight shared by
-    its three corners)."""
-    corners = faces[triangles[rows]].reshape(-1)                     # (P k 3,)
-    w = np.repeat(np.asarray(weights[rows], dtype=np.float64).reshape(-1), 3) / 3.0
-    verts, inv = np.unique(corners, return_inverse=True)
-    return verts, np.bincount(inv.ravel(), weights=w, minlength=len(verts))

@@ -456,7 +456,7 @@ def stacked_mesh(items: list[Mesh], offsets: np.ndarray) -> StackedMesh:
 
 
 def find_rigid_groups(items: list[Mesh], offsets: np.ndarray, labels: np.ndarray, clearance: np.ndarray,
-                      binding: Binding, body: Mesh, rigid, auto: AutoRigid):
+                      binding: Binding, rigid, auto: AutoRigid):
     """The item parts moved as a whole, each with its bound body patch: the body
     vertices of the triangles its vertices use, weighted by how much they are
     used.
@@ -469,8 +469,6 @@ def find_rigid_groups(items: list[Mesh], offsets: np.ndarray, labels: np.ndarray
         Body region of each item vertex.
     clearance : (M,) float array
     binding : Binding
-    body : Mesh
-        The reference body.
     rigid : "auto", "none", None or list of str
         "auto": the small stiff parts of ``auto``; a list: those items, one
         group per body region; "none"/None: no group.
@@ -498,11 +496,7 @@ def find_rigid_groups(items: list[Mesh], offsets: np.ndarray, labels: np.ndarray
             local = []
         for v in local:
             gv = v + a
-            tri_w = binding.weights[gv]
-            corner = body.faces[binding.triangles[gv]]  # (P, k, 3)
-            bw = np.bincount(corner.ravel(), weights=np.repeat(tri_w.ravel(), 3), minlength=body.n_points)
-            bv = np.flatnonzero(bw > 0)
-            groups.append((gv, bv, bw[bv]))
+            groups.append((gv, *binding.body_patch(gv)))
         if local:
             names.append(item.name)
     return groups, names
@@ -617,7 +611,7 @@ def plan(ref: Character, k: int = 5, use_regions: bool = True, rigid="auto", aut
     ref_clear, foot = reference_clearance(ref, ref_query, items, offsets, pts, ref_clearance, far, strict_far)
     item_regions = ItemRegions(vertex=np.where(labels == R.HIPS, R.TORSO, labels), bind=labels,
                                triangle=body_reg.triangle, body=body_reg.vertex, skirt_items=skirts)
-    rigid_groups, rigid_items = find_rigid_groups(items, offsets, item_regions.vertex, ref_clear, binding, body,
+    rigid_groups, rigid_items = find_rigid_groups(items, offsets, item_regions.vertex, ref_clear, binding,
                                                   rigid, auto_rigid or AutoRigid())
     if free_items:
         keep = [(gv, item) for gv, item in zip(rigid_groups, _group_items(rigid_groups, items, offsets))
@@ -625,7 +619,6 @@ def plan(ref: Character, k: int = 5, use_regions: bool = True, rigid="auto", aut
         rigid_groups = [g for g, _ in keep]
         rigid_items = [n for n in rigid_items if n not in free_items]
     loose = loose_weights(items, offsets, skirts, ref_clear, rigid_groups, labels)
-    bound = (binding.triangles, binding.weights, body.faces)  # the loose parts' body patches
     t3 = time.perf_counter()
     order = [(i, j, g) for i, j, g in layer_order(items, offsets, pts, ref_clear)
              if items[i].name not in rigid_items]  # rigid parts move as a whole
@@ -634,6 +627,6 @@ def plan(ref: Character, k: int = 5, use_regions: bool = True, rigid="auto", aut
                      body_query=ref_query, regions=item_regions, mesh=mesh,
                      rigid_groups=rigid_groups, rigid_items=rigid_items,
                      insets_kept=group_mask(rigid_groups, len(pts)),
-                     looseness=loose, smoother=LooseSmoother(mesh.neighbours, loose, bound=bound),
+                     looseness=loose, smoother=LooseSmoother(mesh.neighbours, loose, bound=binding),
                      layers=layer_gaps(ref_query, pts, offsets, order, ref_clear, foot=foot["point"]),
                      timings={"regions_s": t1 - t0, "bind_s": t2 - t1, "plan_rest_s": t3 - t2})
