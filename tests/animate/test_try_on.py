@@ -270,3 +270,31 @@ def test_shoes_keep_to_the_feet_in_the_walk(tmp_path, ref_female):
     # articulated: sole, toe cap and collar each rigid (issue 17's 2 mm)
     assert s["rigid_mm"] <= 2.0, s
     assert b["coverage_loss_pct"] > 2.0 and b["separation_p95_mm"] > 5.0 and b["rigid_mm"] > 10.0, b
+
+
+def test_dress_pose_auto_follows_the_body_topology(ref_male, heavy_male, data_dir):
+    from wearfit_usd.animate.try_on import dress_pose_for
+    mannequin = read_character(data_dir / "thirdparty" / "bodies" / "mannequiny_idle_blender.usdc")
+    assert dress_pose_for(ref_male, heavy_male) == "first"      # the reference's topology
+    assert dress_pose_for(ref_male, mannequin) == "bind"        # another topology
+    for given in ("first", "bind"):
+        assert dress_pose_for(ref_male, mannequin, given) == given
+    with pytest.raises(ValueError, match="dress_pose"):
+        animate(ref_male, heavy_male, None, "x.usdc", AnimateOptions(dress_pose="posed"))
+
+
+@pytest.mark.slow
+def test_game_body_walk_keeps_the_hair_on_the_head(tmp_path, ref_female, walk, data_dir):
+    # GDQuest's mannequin (another topology): dressed in the clip's first
+    # pose, the ponytail was thrown over the face (worst frame's stretch p99
+    # 46.9, coverage loss 18.8 %) and the suit stretched 2.37x; dressed on
+    # the bind pose as `wearfit dress` dresses it: 4.26, 4.2 % and 1.47x
+    mannequin = read_character(data_dir / "thirdparty" / "bodies" / "mannequiny_idle_blender.usdc")
+    rep = animate(ref_female, mannequin, walk, tmp_path / "walk.usdc",
+                  AnimateOptions(start=None, fps=30, measure_every=2))
+    assert rep.dress_pose == "bind"
+    w = rep.motion_worst
+    assert w["ponytail01"]["stretch_p99"]["value"] < 6.0, w["ponytail01"]
+    assert w["ponytail01"]["coverage_loss_pct"]["value"] < 6.0, w["ponytail01"]
+    assert w["female_casualsuit01"]["stretch_p99"]["value"] < 1.8, w["female_casualsuit01"]
+    assert w["female_casualsuit01"]["new_pen_pct"]["value"] < 2.5, w["female_casualsuit01"]

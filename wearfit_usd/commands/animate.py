@@ -52,10 +52,11 @@ def register(sub, common):
                    help="metres per BVH unit (default: detected)")
     p.add_argument("--mode", choices=["bind", "lbs"], default="bind",
                    help="bind: K-triangle binding per frame (default); lbs: skin weights copied to the items")
-    p.add_argument("--dress-pose", choices=["first", "bind"], default="first",
+    p.add_argument("--dress-pose", choices=["auto", "first", "bind"], default="auto",
                    help="first: dress in the clip's first frame pose (reference posed through its own rig, "
-                        "fitted onto the posed target; default); bind: dress on the bind pose and reach "
-                        "frame 0 through the binding (contacts at frame 0 then stay temporary)")
+                        "fitted onto the posed target); bind: dress on the bind pose as `wearfit dress` does "
+                        "and reach frame 0 through the binding (contacts at frame 0 then stay temporary); "
+                        "auto (default): first when the target body has the reference's topology, else bind")
     p.add_argument("--untangle", action="store_true",
                    help="run dressing's untangle pass on frame 0 too (off by default: on the CMU pirouette it "
                         "raised the worst frame's new penetrations from 0.31 %% to 0.33 %%)")
