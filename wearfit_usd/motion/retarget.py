@@ -9,7 +9,22 @@ For every target joint mapped to a clip joint (see :mod:`joint_maps`):
   clip's rest bone direction (joint -> next mapped joint down the chain) to
   the target's bind bone direction. Joints without a usable bone direction
   (hands with several fingers, zero-length bones) inherit their parent's Q.
-* ``mode="direction"`` (default): ``W(f) = B @ Q.T @ G(f)``: each target
+* ``mode="posture"`` (default): the limbs as ``"direction"``, the axial
+  chain (the joints from the hips up to the head, by the pairing's roles)
+  as ``"bind"``. A skeleton's spine, neck and head bones follow its own
+  conventions, not a pose: MakeHuman's neck bone leans 22 degrees forward
+  in its upright bind pose, CMU's head bone 13 degrees back in its upright
+  rest. Pointing the target's bones along the clip's ("direction") imposed
+  the clip skeleton's conventions: heads thrown back and torsos leaning
+  back in the CMU walk, jump and dances. The clip's rest and the target's
+  bind are both a person standing upright, so the axial chain takes the
+  clip's rotation relative to its rest: the torso's lean (pelvis to neck,
+  from the vertical, against the rest's) is the clip's (median over the
+  clip, ref_female: walk 1.0 / 4.9 / -0.6, run 10.5 / 3.5 / 8.8, jump
+  4.6 / 9.3 / 4.6 degrees for the clip / "direction" / "posture"). The
+  limbs' rest poses differ by pose (a T-pose clip, an A-pose body), so they
+  keep the bone directions.
+* ``mode="direction"``: ``W(f) = B @ Q.T @ G(f)``: each target
   bone points exactly where the clip's bone points, the twist about the bone
   follows the clip relative to the target's bind frame. Rest-pose
   differences (T-pose clip, A-pose body; CMU's splayed rest legs) do not
@@ -43,6 +58,9 @@ from ..resources import require_memory
 from ..transforms import invert, matrix_from_quat, quat_from_matrix, quat_slerp, rotation_between, rotation_part
 from .joint_maps import JointMapping, normalize, roles
 from .rig_match import RigMatch, leg_length, match_skeletons, require_match
+
+#: retargeting modes (module docstring)
+MODES = ("posture", "direction", "bind")
 
 
 @dataclass
@@ -127,7 +145,7 @@ def resample_clip(grot: np.ndarray, root_pos: np.ndarray, src_fps: float, fps: f
 
 def retarget(motion: BVHMotion, skeleton: Skeleton, mapping: JointMapping | dict | None = None,
              start: int = 0, end: int | None = None, fps: float | None = None,
-             mode: str = "direction", rest="zero", max_frames: int | None = None) -> Retargeted:
+             mode: str = "posture", rest="zero", max_frames: int | None = None) -> Retargeted:
     """Retarget ``motion`` onto ``skeleton``.
 
     mapping: a :class:`JointMapping`, a {target: source} dict (user map
@@ -136,11 +154,12 @@ def retarget(motion: BVHMotion, skeleton: Skeleton, mapping: JointMapping | dict
         synthetic T-pose frame 0).
     fps: None keeps the clip's rate; otherwise resample (slerp rotations,
         linear root translation).
-    mode: "direction" (default: each target bone points along the clip's
-        bone, so a T-pose clip on an A-pose body gives natural motion) or
-        "bind" (the clip's rest maps exactly to the target's bind pose; the
-        rest-pose difference then persists through the motion); see the
-        module docstring.
+    mode: "posture" (default: the limbs as "direction", the hips-to-head
+        chain as "bind"), "direction" (each target bone points along the
+        clip's bone, so a T-pose clip on an A-pose body gives natural
+        motion) or "bind" (the clip's rest maps exactly to the target's bind
+        pose; the rest-pose difference then persists through the motion);
+        see the module docstring.
     rest: the clip's rest pose: "zero" (all channels zero, BVH's rest) or a
         frame index (e.g. 0 for CMU's synthetic T-pose frame).
     max_frames: refuse (:class:`OutputError`) more output frames than this,
@@ -155,14 +174,14 @@ def retarget(motion: BVHMotion, skeleton: Skeleton, mapping: JointMapping | dict
 
 def retarget_stream(motion: BVHMotion, skeleton: Skeleton, mapping: JointMapping | dict | None = None,
                     start: int = 0, end: int | None = None, fps: float | None = None,
-                    mode: str = "direction", rest="zero",
+                    mode: str = "posture", rest="zero",
                     max_frames: int | None = None) -> RetargetStream:
     """Set up the retargeting of ``motion`` onto ``skeleton`` (arguments,
     checks and errors as :func:`retarget`) without computing any output
     frame: a :class:`RetargetStream` computes them a block at a time, so
     memory does not grow with the frame count."""
-    if mode not in ("bind", "direction"):
-        raise ValueError(f"mode must be 'bind' or 'direction', got {mode!r}")
+    if mode not in MODES:
+        raise ValueError(f"mode must be one of {', '.join(MODES)}, got {mode!r}")
     n_all = motion.n_frames
     end = n_all if end is None else int(end)
     start = int(start)
@@ -293,11 +312,34 @@ def retarget_stream(motion: BVHMotion, skeleton: Skeleton, mapping: JointMapping
         lt, lc = leg_length(match.target, bpos), leg_length(match.source, srest)
         if lt and lc:
             ratio_xz = lt / lc
+    # the joints that keep the target's bind posture (see the module docstring)
+    posture = np.zeros(J, dtype=bool)
+    if mode == "bind":
+        posture[:] = True
+    elif mode == "posture" and match is not None:
+        posture[axial_chain(match, tparents)] = True
     return RetargetStream(motion=motion, skeleton=skeleton, mapping=mapping, mode=mode, fps=out_fps,
+                          posture=posture,
                           n_frames=F, start=start, same_rate=same_rate, src_fps=src_fps,
                           source_frames=src_frames, root_src=root_src, floor_c=floor_c, r0=r0,
                           src_of=src_of, troot=troot, Q=Q, ratio=ratio, floor_t=floor_t, ratio_xz=ratio_xz,
                           match=match)
+
+
+def axial_chain(match: RigMatch, parents: np.ndarray) -> list[int]:
+    """Target joints from the hips up to the head (both included), by the
+    pairing's roles; empty when either is missing or the head is not above
+    the hips."""
+    roles = match.target.roles
+    if "hips" not in roles or "head" not in roles:
+        return []
+    hips, j, chain = roles["hips"], roles["head"], []
+    while j >= 0:
+        chain.append(int(j))
+        if j == hips:
+            return chain
+        j = int(parents[j])
+    return []
 
 
 #: output frames computed at once by :class:`RetargetStream` (and source
@@ -330,6 +372,7 @@ class RetargetStream:
     Q: np.ndarray
     ratio: float
     floor_t: float
+    posture: np.ndarray | None = None  # (J,) bool: joints retargeted relative to the bind pose (mode)
     ratio_xz: float = 1.0          # horizontal travel: the leg-length ratio
     match: RigMatch | None = None  # the role pairing, when the mapping came from it
     # feet on the floor (motion.floor.place_on_floor): every frame moves up by
@@ -385,7 +428,8 @@ class RetargetStream:
         root0 = self.root_src[0]  # output frame 0 is the first clip frame (as resampled)
         if not self.same_rate:
             root0 = self.root_src[0] * 1.0 + self.root_src[min(1, len(self.root_src) - 1)] * 0.0
-        skeleton, Q, mode = self.skeleton, self.Q, self.mode
+        skeleton, Q = self.skeleton, self.Q
+        posture = self.posture if self.posture is not None else np.full(len(Q), self.mode == "bind")
         tparents = np.asarray(skeleton.parents)
         bind = np.asarray(skeleton.bind_world, dtype=np.float64)
         bpos = bind[:, 3, :3]
@@ -403,7 +447,7 @@ class RetargetStream:
             s = self.src_of[t]
             if s >= 0:
                 g = grot[:, s]
-                if mode == "bind":
+                if posture[t]:
                     rot[:, t] = brot[t] @ Q[t].T @ g @ Q[t]
                 else:
                     rot[:, t] = brot[t] @ Q[t].T @ g
