@@ -56,7 +56,7 @@ def register(sub, common):
                    help="first: dress in the clip's first frame pose (reference posed through its own rig, "
                         "fitted onto the posed target); bind: dress on the bind pose as `wearfit dress` does "
                         "and reach frame 0 through the binding (contacts at frame 0 then stay temporary); "
-                        "auto (default): first when the target body has the reference's topology, else bind")
+                        "auto (default): bind for a coarse (low-poly) body of another topology, else first")
     p.add_argument("--untangle", action="store_true",
                    help="run dressing's untangle pass on frame 0 too (off by default: on the CMU pirouette it "
                         "raised the worst frame's new penetrations from 0.31 %% to 0.33 %%)")
