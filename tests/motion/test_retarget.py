@@ -212,6 +212,18 @@ def test_posture_mode_keeps_the_upright_stance(walk, ref_female):
         assert abs(arm[1]) / np.linalg.norm(arm) < 0.1, arm
 
 
+def test_posture_chain_found_with_or_without_the_pairing(walk, ref_female):
+    from wearfit_usd.motion.retarget import retarget_stream
+    sk = ref_female.skeleton
+    paired = retarget_stream(walk, sk, start=1, end=10)
+    named = retarget_stream(walk, sk, mapping=map_joints(walk.joint_names, sk.joint_names), start=1, end=10)
+    want = {"pelvis", "spine_01", "spine_02", "spine_03", "neck_01", "head"}
+    for s in (paired, named):
+        assert {sk.joint_names[j] for j in np.flatnonzero(s.posture)} == want
+    assert not retarget_stream(walk, sk, start=1, end=10, mode="direction").posture.any()
+    assert retarget_stream(walk, sk, start=1, end=10, mode="bind").posture.all()
+
+
 @pytest.mark.parametrize("clip, baseline_off", [("cmu_07_01_walk.bvh", 3.0), ("cmu_09_11_run.bvh", 5.0),
                                                 ("cmu_02_04_jump_balance.bvh", 3.0)])
 def test_posture_mode_leans_the_torso_as_the_clip_does(bvh_dir, ref_female, clip, baseline_off):

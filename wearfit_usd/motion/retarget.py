@@ -57,7 +57,7 @@ from ..model import Skeleton
 from ..resources import require_memory
 from ..transforms import invert, matrix_from_quat, quat_from_matrix, quat_slerp, rotation_between, rotation_part
 from .joint_maps import JointMapping, normalize, roles
-from .rig_match import RigMatch, leg_length, match_skeletons, require_match
+from .rig_match import RigMatch, find_roles, leg_length, match_skeletons, require_match
 
 #: retargeting modes (module docstring)
 MODES = ("posture", "direction", "bind")
@@ -316,8 +316,10 @@ def retarget_stream(motion: BVHMotion, skeleton: Skeleton, mapping: JointMapping
     posture = np.zeros(J, dtype=bool)
     if mode == "bind":
         posture[:] = True
-    elif mode == "posture" and match is not None:
-        posture[axial_chain(match, tparents)] = True
+    elif mode == "posture":
+        # the roles of the pairing, or (a JointMapping given) of the skeleton alone
+        troles = match.target if match is not None else find_roles(tnames, tparents, bpos)
+        posture[axial_chain(troles.roles, tparents)] = True
     return RetargetStream(motion=motion, skeleton=skeleton, mapping=mapping, mode=mode, fps=out_fps,
                           posture=posture,
                           n_frames=F, start=start, same_rate=same_rate, src_fps=src_fps,
@@ -326,11 +328,10 @@ def retarget_stream(motion: BVHMotion, skeleton: Skeleton, mapping: JointMapping
                           match=match)
 
 
-def axial_chain(match: RigMatch, parents: np.ndarray) -> list[int]:
-    """Target joints from the hips up to the head (both included), by the
-    pairing's roles; empty when either is missing or the head is not above
-    the hips."""
-    roles = match.target.roles
+def axial_chain(roles: dict, parents: np.ndarray) -> list[int]:
+    """Joints from the hips up to the head (both included), by a skeleton's
+    roles ({role: joint index}, :class:`rig_match.RigRoles`); empty when
+    either is missing or the head is not above the hips."""
     if "hips" not in roles or "head" not in roles:
         return []
     hips, j, chain = roles["hips"], roles["head"], []
