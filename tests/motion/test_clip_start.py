@@ -31,7 +31,7 @@ def test_rotation_steps_known_answers():
         rotation_steps(np.zeros((3, 2, 3)))
 
 
-def test_rest_frame_is_a_large_first_step_only():
+def test_rest_frame_is_a_large_first_step():
     walk = 40.0 + 10.0 * np.sin(np.arange(60) / 5.0)   # steps of at most 2 degrees
     assert leading_rest_frames(_motion(np.r_[0.0, walk])) == 1          # 30 degrees and more in one frame
     assert leading_rest_frames(_motion(walk)) == 0                      # starts in motion
@@ -39,6 +39,15 @@ def test_rest_frame_is_a_large_first_step_only():
     fast = 60.0 * np.sin(np.arange(60) / 2.0)                           # steps up to ~30 degrees
     assert leading_rest_frames(_motion(np.r_[fast[0] + 45.0, fast])) == 0  # not 2x the later steps
     assert leading_rest_frames(_motion([0.0, 90.0])) == 0               # too short to tell
+
+
+def test_rest_blended_into_the_motion_over_a_few_frames():
+    walk = 40.0 + 10.0 * np.sin(np.arange(60) / 5.0)   # steps of at most 2 degrees
+    blend = np.r_[-44.0, -20.0, 4.0, 24.0]              # 24, 24, 20 and 16 degrees to walk[0] = 40
+    assert leading_rest_frames(_motion(np.r_[blend, walk])) == 4          # the motion starts at frame 4
+    assert leading_rest_frames(_motion(np.r_[16.0, 28.0, walk])) == 0     # 12 + 12 degrees: too little
+    ramp = np.cumsum(np.full(12, 20.0))                                   # 20 degrees a frame for 11 frames
+    assert leading_rest_frames(_motion(np.r_[ramp, ramp[-1] + walk - 40.0])) == 0  # fast motion, not a rest
 
 
 def test_the_data_sets_cmu_conversions_start_with_a_rest_frame():
@@ -49,6 +58,8 @@ def test_the_data_sets_cmu_conversions_start_with_a_rest_frame():
                  "cmu_05_12_dance_arms_held_high.bvh", "cmu_07_01_walk.bvh", "cmu_09_11_run.bvh"):
         assert found[name] == 1, name
     # clips that start in motion, a one-frame pose
+    # Daz's conversion blends its rest into the motion over four frames (24, 25, 22 and 15 degrees)
+    assert found["cmudaz_02_02_walk.bvh"] == 4
     assert found["cmu3dsmax_131_01_start_walk_stop.bvh"] == 0
     assert found["mhdefault_run01_pose.bvh"] == 0
     assert third and all(v == 0 for v in third.values()), third

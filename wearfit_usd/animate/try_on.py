@@ -194,7 +194,8 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
     if start is None:
         start = leading_rest_frames(motion)
         if start:
-            info(f"{motion.path}: frame 0 is the converter's rest pose (a T-pose): the shot starts at clip frame "
+            what = "frame 0 is" if start == 1 else f"frames 0-{start - 1} blend from"
+            info(f"{motion.path}: {what} the converter's rest pose (a T-pose): the shot starts at clip frame "
                  f"{start} (--start 0 keeps it)")
     rt = retarget_stream(motion, target.skeleton, mapping=opt.mapping, start=start, end=opt.end,
                          fps=opt.fps, max_frames=opt.max_frames)
