@@ -373,7 +373,7 @@ class RetargetStream:
     Q: np.ndarray
     ratio: float
     floor_t: float
-    posture: np.ndarray | None = None  # (J,) bool: joints retargeted relative to the bind pose (mode)
+    posture: np.ndarray  # (J,) bool: joints retargeted relative to the bind pose (mode)
     ratio_xz: float = 1.0          # horizontal travel: the leg-length ratio
     match: RigMatch | None = None  # the role pairing, when the mapping came from it
     # feet on the floor (motion.floor.place_on_floor): every frame moves up by
@@ -429,8 +429,7 @@ class RetargetStream:
         root0 = self.root_src[0]  # output frame 0 is the first clip frame (as resampled)
         if not self.same_rate:
             root0 = self.root_src[0] * 1.0 + self.root_src[min(1, len(self.root_src) - 1)] * 0.0
-        skeleton, Q = self.skeleton, self.Q
-        posture = self.posture if self.posture is not None else np.full(len(Q), self.mode == "bind")
+        skeleton, Q, posture = self.skeleton, self.Q, self.posture
         tparents = np.asarray(skeleton.parents)
         bind = np.asarray(skeleton.bind_world, dtype=np.float64)
         bpos = bind[:, 3, :3]
