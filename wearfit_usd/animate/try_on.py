@@ -36,7 +36,7 @@ from ..dress.plan import DressPlan
 from ..dress.plan import plan as plan_dress
 from ..errors import NonFiniteError, USDInputError
 from ..fit.body_fit import fit_character
-from ..geometry.mesh import edges
+from ..geometry.mesh import edges, same_topology
 from ..io.usd_carry import CarryPlan
 from ..io.usd_shot import ShotWriter
 from ..model import Character
@@ -139,7 +139,7 @@ def dress_pose_for(reference: Character, target: Character, dress_pose: str = "a
     if dress_pose != "auto":
         return dress_pose
     tb, rb = target.body, reference.body
-    if tb.n_points == rb.n_points and np.array_equal(tb.faces, rb.faces):
+    if same_topology(tb.points, tb.faces, rb.points, rb.faces):
         return "first"
     return "bind" if _edge_p99(tb) > COARSE_EDGE_RATIO * _edge_p99(rb) else "first"
 

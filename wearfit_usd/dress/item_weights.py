@@ -29,6 +29,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..geometry.closest import SurfaceQuery
+from ..geometry.mesh import same_topology
 from ..model import SKINNED_SUFFIX  # noqa: F401 (re-exported: the skinned copies' names)
 from .binding import Binding
 
@@ -304,8 +305,7 @@ def target_body_weights(target_body, fitted_points: np.ndarray, fitted_faces: np
 
     Returns (N_ref, I) joint indices and weights.
     """
-    if (len(target_body.points) == len(fitted_points) and target_body.faces.shape == fitted_faces.shape
-            and np.array_equal(target_body.faces, fitted_faces)):
+    if same_topology(target_body.points, target_body.faces, fitted_points, fitted_faces):
         return target_body.joint_indices, target_body.joint_weights
     return transfer_weights(target_body.points, target_body.faces, target_body.joint_indices,
                             target_body.joint_weights, fitted_points, n_joints, max_influences=max_influences)

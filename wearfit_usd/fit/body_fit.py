@@ -46,7 +46,7 @@ import scipy.sparse as sp
 
 from ..errors import GeometryError
 from ..geometry.closest import vertex_normals
-from ..geometry.mesh import nondegenerate
+from ..geometry.mesh import nondegenerate, same_topology
 from ..geometry.sparse_solve import SPDSolver
 from ..motion.rig_match import require_match
 from ..motion.skinning import skin_points
@@ -440,11 +440,6 @@ def _project(points, faces, target: SurfaceIndex, reference_normals: np.ndarray,
 # --------------------------------------------------------------------------
 # public API
 
-def _same_topology(ref_points, ref_faces, target_points, target_faces) -> bool:
-    return (len(ref_points) == len(target_points) and ref_faces.shape == target_faces.shape
-            and bool(np.array_equal(ref_faces, target_faces)))
-
-
 def fit_body(ref_points: Points, ref_faces: Faces, target_points: Points, target_faces: Faces, *,
              ref_skeleton=None, ref_joint_indices: JointIndices | None = None,
              ref_joint_weights: Weights | None = None, target_skeleton=None,
@@ -545,7 +540,7 @@ def fit_body(ref_points: Points, ref_faces: Faces, target_points: Points, target
         diag["joint_pairs"] = len(pairs)
     diag["time_align_s"] = time.perf_counter() - t0
 
-    same = opts.same_topology_shortcut and _same_topology(ref_points, ref_faces, target_points,
+    same = opts.same_topology_shortcut and same_topology(ref_points, ref_faces, target_points,
                                                           target_faces)
     diag["same_topology"] = bool(same)
     if same:

@@ -34,6 +34,12 @@ def components(faces: np.ndarray, n: int) -> np.ndarray:
     return connected_components(adjacency(faces, n), directed=False)[1]
 
 
+def same_topology(points_a: Points, faces_a: Faces, points_b: Points, faces_b: Faces) -> bool:
+    """Whether two meshes are one topology: as many points, the same triangles."""
+    return (len(points_a) == len(points_b) and np.shape(faces_a) == np.shape(faces_b)
+            and bool(np.array_equal(faces_a, faces_b)))
+
+
 def edges(faces: np.ndarray) -> np.ndarray:
     """(E, 2) unique undirected edges."""
     e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]).astype(np.int64)
