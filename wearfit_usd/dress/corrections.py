@@ -209,7 +209,6 @@ class LooseSmoother:
         return assign_rows(out, u, ref_u + self.solver.solve(rhs))
 
 
-
 def off_skin(res: dict, rows, clearance: np.ndarray) -> np.ndarray:
     """(R, 3) points at ``clearance`` (R,) m along the unit normal from the
     closest skin points of a :meth:`SurfaceQuery.closest` result ``res``,
