@@ -65,3 +65,63 @@ def test_without_edges_the_guard_is_unchanged():
     np.testing.assert_array_equal(a, b)
     with pytest.raises(ValueError, match="item_neighbours"):
         PenetrationGuard(bf, bp, sp_, item_neighbours=adjacency(sf, len(sp_))[:10, :10])
+
+
+def _far_shell():
+    """A shell 4 cm off a sphere, and the body with a bump 6 cm high round
+    +x: the bump comes 2 cm through the shell."""
+    body = trimesh.creation.icosphere(subdivisions=3, radius=0.3)
+    shell = trimesh.creation.icosphere(subdivisions=3, radius=0.34)
+    bp, bf = np.asarray(body.vertices, float), np.asarray(body.faces, np.int64)
+    top = np.array([0.3, 0.0, 0.0])
+    d = np.linalg.norm(bp - top, axis=1)
+    bump = bp + (0.06 * np.clip(1.0 - d / 0.08, 0.0, None))[:, None] * bp / 0.3
+    return bp, bf, bump, np.asarray(shell.vertices, float)
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_max_clearance_caps_what_a_push_gives_back(compiled):
+    # a vertex 4 cm off the body gets 4 cm back without a cap (a bulk of
+    # hair pushed that far from whatever surface is nearest), 1 cm with it
+    bp, bf, bump, sp_ = _far_shell()
+    q = SurfaceQuery(bf, bump)
+    inside = np.flatnonzero(q.signed_distance(sp_) < -0.005)
+    assert len(inside) >= 1
+    free, _ = PenetrationGuard(bf, bp, sp_, compiled=compiled).apply(bump, sp_)
+    capped, _ = PenetrationGuard(bf, bp, sp_, compiled=compiled, max_clearance=0.01).apply(bump, sp_)
+    d_free, d_capped = q.signed_distance(free)[inside], q.signed_distance(capped)[inside]
+    np.testing.assert_allclose(d_free, 0.04, atol=0.004)
+    np.testing.assert_allclose(d_capped, 0.01, atol=0.003)
+    # vertices the bump does not reach are left alone either way
+    far = np.linalg.norm(sp_ - [0.34, 0.0, 0.0], axis=1) > 0.2
+    np.testing.assert_array_equal(capped[far], sp_[far])
+    # a cap under the margin still keeps the margin
+    g = PenetrationGuard(bf, bp, sp_, margin=0.002, max_clearance=0.0005)
+    assert g.target.min() == pytest.approx(0.002)
+
+
+def test_a_push_left_inside_is_redone_from_the_whole_body():
+    # the frame's few candidate triangles can give a wrong normal (large
+    # triangles, overlapping parts of a game body) and the push then goes
+    # into the body: the check against the whole body redoes it from where
+    # the vertex was, along its true closest feature's normal, to its
+    # clearance; a push that was not needed at all is dropped
+    body = trimesh.creation.icosphere(subdivisions=3, radius=0.3)
+    bp, bf = np.asarray(body.vertices, float), np.asarray(body.faces, np.int64)
+    pts = np.array([[0.31, 0.0, 0.0], [0.0, 0.33, 0.0], [0.0, 0.0, -0.35]])
+    g = PenetrationGuard(bf, bp, pts, max_clearance=0.02)
+    g.update(bp)
+    target = g.target.copy()
+    # pushes as a wrong normal gives them: inward, 2 cm and 1 cm
+    g.push[:] = [0.02, 0.01, 0.0]
+    g.direction[:2] = -pts[:2] / np.linalg.norm(pts[:2], axis=1, keepdims=True)
+    out = pts + g.push[:, None] * g.direction
+    fixed = g._checked(pts, out.copy())
+    d = SurfaceQuery(bf, bp).signed_distance(fixed)
+    # the first was pushed 1 cm into the body: out again, at its clearance
+    assert d[0] == pytest.approx(target[0], abs=0.002)
+    assert g.direction[0] @ (pts[0] / np.linalg.norm(pts[0])) > 0.95
+    # the second's wrong push left it outside by more than the margin: kept as it is
+    np.testing.assert_array_equal(fixed[1], out[1])
+    # the third was not pushed
+    np.testing.assert_array_equal(fixed[2], pts[2])

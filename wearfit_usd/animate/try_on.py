@@ -114,6 +114,11 @@ class AnimateReport:
 #: reference body's is coarse (a low-poly game body): dressed on its bind pose
 COARSE_EDGE_RATIO = 2.0
 
+#: the penetration pass gives a pushed vertex back at most this clearance
+#: (PenetrationGuard's max_clearance): it keeps items out of the body, the
+#: binding keeps their volume
+GUARD_MAX_CLEARANCE = 0.01
+
 
 def dress_pose_for(reference: Character, target: Character, dress_pose: str = "auto") -> str:
     """The pose a shot's frame 0 is dressed in: ``dress_pose`` itself unless
@@ -321,7 +326,8 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
         # no other guard does; else it only counts penetrations
         pushes = opt.mode == "bind" and cloth is None and rigid is None
         guard = PenetrationGuard(body.faces, base_body, frame0_items, margin=opt.penetration_margin,
-                                 item_neighbours=frame_plan.mesh.neighbours if pushes else None)
+                                 item_neighbours=frame_plan.mesh.neighbours if pushes else None,
+                                 max_clearance=GUARD_MAX_CLEARANCE)
     if cloth is not None or rigid is not None:
         # the cloth keeps its own distance from the body: the guard would pull
         # it back to its frame-0 clearance; "new penetration" still counts it.
@@ -335,7 +341,8 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
         pushed_rows = np.flatnonzero(keep)
         nb = frame_plan.mesh.neighbours.tocsr()
         push_guard = PenetrationGuard(body.faces, base_body, all_base[pushed_rows], margin=opt.penetration_margin,
-                                      item_neighbours=nb[pushed_rows][:, pushed_rows])
+                                      item_neighbours=nb[pushed_rows][:, pushed_rows],
+                                      max_clearance=GUARD_MAX_CLEARANCE)
     measures = None
     if opt.measure_every and opt.motion_measures:
         t0 = time.perf_counter()
