@@ -125,3 +125,8 @@ def test_a_push_left_inside_is_redone_from_the_whole_body():
     np.testing.assert_array_equal(fixed[1], out[1])
     # the third was not pushed
     np.testing.assert_array_equal(fixed[2], pts[2])
+    # without the check (a dense body) the pushes stand as they are
+    off = PenetrationGuard(bf, bp, pts, max_clearance=0.02, check_pushes=False)
+    off.update(bp)
+    off.push[:] = g.push
+    np.testing.assert_array_equal(off._checked(pts, out.copy()), out)

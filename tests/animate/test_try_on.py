@@ -273,8 +273,10 @@ def test_shoes_keep_to_the_feet_in_the_walk(tmp_path, ref_female):
 
 
 def test_dress_pose_auto_follows_the_body_topology(ref_male, heavy_male, data_dir):
-    from wearfit_usd.animate.try_on import dress_pose_for
+    from wearfit_usd.animate.try_on import coarse_body, dress_pose_for
     mannequin = read_character(data_dir / "thirdparty" / "bodies" / "mannequiny_idle_blender.usdc")
+    # coarse bodies also get the penetration guard's whole-body check of its pushes
+    assert coarse_body(ref_male, mannequin) and not coarse_body(ref_male, heavy_male)
     assert dress_pose_for(ref_male, heavy_male) == "first"      # the reference's topology
     assert dress_pose_for(ref_male, mannequin) == "bind"        # a coarse body (edges p99 93 mm)
     remeshed = read_character(USD_DIR / "body_female_heavy_remeshed.usdc")

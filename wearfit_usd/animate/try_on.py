@@ -143,10 +143,17 @@ def dress_pose_for(reference: Character, target: Character, dress_pose: str = "a
     frame's new penetrations 0.65 % against 3.5 % on the bind pose."""
     if dress_pose != "auto":
         return dress_pose
+    return "bind" if coarse_body(reference, target) else "first"
+
+
+def coarse_body(reference: Character, target: Character) -> bool:
+    """True when the target's body is coarse (a low-poly game body): of
+    another topology than the reference's, its edges' 99th percentile over
+    ``COARSE_EDGE_RATIO`` times the reference body's."""
     tb, rb = target.body, reference.body
     if same_topology(tb.points, tb.faces, rb.points, rb.faces):
-        return "first"
-    return "bind" if _edge_p99(tb) > COARSE_EDGE_RATIO * _edge_p99(rb) else "first"
+        return False
+    return bool(_edge_p99(tb) > COARSE_EDGE_RATIO * _edge_p99(rb))
 
 
 def _edge_p99(mesh) -> float:
@@ -182,6 +189,7 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
         raise USDInputError(reference.source, "the reference has no skeleton")
     if not reference.items:
         raise USDInputError(reference.source, "the reference holds no wearable items (no Mesh besides the body)")
+    coarse = coarse_body(reference, target)  # also asks the penetration guard to check its pushes
     pose = dress_pose_for(reference, target, opt.dress_pose)
     if pose != opt.dress_pose:
         opt = replace(opt, dress_pose=pose)
@@ -327,7 +335,7 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
         pushes = opt.mode == "bind" and cloth is None and rigid is None
         guard = PenetrationGuard(body.faces, base_body, frame0_items, margin=opt.penetration_margin,
                                  item_neighbours=frame_plan.mesh.neighbours if pushes else None,
-                                 max_clearance=GUARD_MAX_CLEARANCE)
+                                 max_clearance=GUARD_MAX_CLEARANCE, check_pushes=coarse)
     if cloth is not None or rigid is not None:
         # the cloth keeps its own distance from the body: the guard would pull
         # it back to its frame-0 clearance; "new penetration" still counts it.
@@ -342,7 +350,7 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
         nb = frame_plan.mesh.neighbours.tocsr()
         push_guard = PenetrationGuard(body.faces, base_body, all_base[pushed_rows], margin=opt.penetration_margin,
                                       item_neighbours=nb[pushed_rows][:, pushed_rows],
-                                      max_clearance=GUARD_MAX_CLEARANCE)
+                                      max_clearance=GUARD_MAX_CLEARANCE, check_pushes=coarse)
     measures = None
     if opt.measure_every and opt.motion_measures:
         t0 = time.perf_counter()
