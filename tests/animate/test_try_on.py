@@ -311,11 +311,11 @@ def test_game_body_keeps_the_ponytail_out_of_the_nape(tmp_path, ref_female, bvh_
     # (clip frames 1150-1290): the penetration pass pushed the ponytail's
     # bulk back to its 4-6 cm clearance from whatever triangle its few
     # candidates offered, the skull's underside, so down into the neck:
-    # new penetrations 11.0 %, stretch p99 16.7 (now 5.1 % and 5.7)
+    # new penetrations 11.0 %, stretch p99 16.7 (2.3 % and 5.1 with the 3 mm cap)
     mannequin = read_character(data_dir / "thirdparty" / "bodies" / "mannequiny_idle_blender.usdc")
     clip = read_bvh(bvh_dir / "cmu_05_12_dance_arms_held_high.bvh")
     rep = animate(ref_female, mannequin, clip, tmp_path / "arms.usdc",
                   AnimateOptions(start=1150, end=1290, fps=30, measure_every=1))
     w = rep.motion_worst["ponytail01"]
-    assert w["new_pen_pct"]["value"] < 7.0, w
-    assert w["stretch_p99"]["value"] < 8.0, w
+    assert w["new_pen_pct"]["value"] < 5.0, w
+    assert w["stretch_p99"]["value"] < 7.0, w

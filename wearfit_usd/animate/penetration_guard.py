@@ -240,7 +240,7 @@ class PenetrationGuard:
 
     def _checked(self, item_points: np.ndarray, out: np.ndarray, before=None) -> np.ndarray:
         """The pushed vertices checked against the whole body (the closest
-        point among the nearest triangles now, as the measures find it): one
+        point among a wider set of triangles, :meth:`_check_candidates`): one
         that its push left inside, or put inside, is pushed again from where
         it was, along the normal of its true closest feature, to its
         clearance; one that is outside enough there is not pushed at all.
