@@ -10,6 +10,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..geometry.closest import SurfaceQuery, VertexNormals
+from ..geometry.mesh import edge_length_percentile
 from ..kernels import HAVE_NUMBA, GuardBody, GuardState, RadiusGrid, face_normal_sums, guard_estimate, guard_frame
 
 
@@ -107,11 +108,7 @@ class PenetrationGuard:
         self.push = np.zeros(len(item_points0))   # current push amount (m)
         self.direction = np.zeros((len(item_points0), 3))
         self._hint = np.full(len(item_points0), -1, dtype=np.int64)  # last nearest body vertex
-        # the whole-body check's grid over the triangle centroids, as far as
-        # the body's long edges (a coarse body's centroids are far apart)
-        e = self.query.points[self.faces] - self.query.points[np.roll(self.faces, 1, axis=1)]
-        self._centroid_radius = max(self.radius, 1.5 * float(np.percentile(np.linalg.norm(e, axis=2), 99)))
-        self._cgrid = None
+        self._cgrid = None  # the whole-body check's grid over the triangle centroids (built on first use)
         self.check_pushes = bool(check_pushes)
 
     def estimate(self, item_points: np.ndarray, grid: RadiusGrid | None = None):
@@ -285,7 +282,9 @@ class PenetrationGuard:
         vi, _ = self._frame_grid().nearest(points)
         cents = self.query.centroids
         if self._cgrid is None:
-            self._cgrid = RadiusGrid(cents, self._centroid_radius)
+            # searched as far as the body's long edges (a coarse body's centroids are far apart)
+            reach = 1.5 * edge_length_percentile(self.query.points, self.faces)
+            self._cgrid = RadiusGrid(cents, max(self.radius, reach))
         elif self._cgrid.points is not cents:
             self._cgrid.update(cents)
         ci, _ = self._cgrid.nearest(points)

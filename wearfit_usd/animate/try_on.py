@@ -36,7 +36,7 @@ from ..dress.plan import DressPlan
 from ..dress.plan import plan as plan_dress
 from ..errors import NonFiniteError, USDInputError
 from ..fit.body_fit import fit_character
-from ..geometry.mesh import edges, same_topology
+from ..geometry.mesh import edge_length_percentile, same_topology
 from ..io.usd_carry import CarryPlan
 from ..io.usd_shot import ShotWriter
 from ..model import Character
@@ -125,7 +125,8 @@ COARSE_EDGE_RATIO = 2.0
 GUARD_MAX_CLEARANCE = 0.003
 
 
-def dress_pose_for(reference: Character, target: Character, dress_pose: str = "auto") -> str:
+def dress_pose_for(reference: Character, target: Character, dress_pose: str = "auto",
+                   coarse: bool | None = None) -> str:
     """The pose a shot's frame 0 is dressed in: ``dress_pose`` itself unless
     it is ``"auto"``; then ``"bind"`` (the items dressed on the target's
     bind pose, as ``wearfit dress`` dresses them, and carried to frame 0 by
@@ -145,10 +146,11 @@ def dress_pose_for(reference: Character, target: Character, dress_pose: str = "a
     pose, coverage loss 31 -> 3.7 %, the suit's stretch p99 2.36 -> 1.48.
     A dense target of another topology (a remeshed body) dresses better in
     the clip's pose: the demo's arm raise on its remeshed sample, worst
-    frame's new penetrations 0.65 % against 3.5 % on the bind pose."""
+    frame's new penetrations 0.65 % against 3.5 % on the bind pose.
+    ``coarse``: :func:`coarse_body` of the two, if the caller has it."""
     if dress_pose != "auto":
         return dress_pose
-    return "bind" if coarse_body(reference, target) else "first"
+    return "bind" if (coarse_body(reference, target) if coarse is None else coarse) else "first"
 
 
 def coarse_body(reference: Character, target: Character) -> bool:
@@ -158,13 +160,7 @@ def coarse_body(reference: Character, target: Character) -> bool:
     tb, rb = target.body, reference.body
     if same_topology(tb.points, tb.faces, rb.points, rb.faces):
         return False
-    return bool(_edge_p99(tb) > COARSE_EDGE_RATIO * _edge_p99(rb))
-
-
-def _edge_p99(mesh) -> float:
-    """99th percentile of a mesh's edge lengths."""
-    e = edges(mesh.faces)
-    return float(np.percentile(np.linalg.norm(mesh.points[e[:, 1]] - mesh.points[e[:, 0]], axis=1), 99))
+    return edge_length_percentile(tb.points, tb.faces) > COARSE_EDGE_RATIO * edge_length_percentile(rb.points, rb.faces)
 
 
 def _posed_skeleton(skeleton, world0):
@@ -195,7 +191,7 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
     if not reference.items:
         raise USDInputError(reference.source, "the reference holds no wearable items (no Mesh besides the body)")
     coarse = coarse_body(reference, target)  # also asks the penetration guard to check its pushes
-    pose = dress_pose_for(reference, target, opt.dress_pose)
+    pose = dress_pose_for(reference, target, opt.dress_pose, coarse=coarse)
     if pose != opt.dress_pose:
         opt = replace(opt, dress_pose=pose)
         if pose == "bind" and opt.mode == "bind":

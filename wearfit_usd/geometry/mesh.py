@@ -2,6 +2,7 @@
 
 - :func:`adjacency`, :func:`components`, :func:`edges`: vertex adjacency,
   connected components and unique edges of a triangle mesh;
+  :func:`edge_length_percentile`: how long its edges run;
 - :func:`nondegenerate`: the one test for zero-area triangles;
 - :func:`similarity_fit`: the one best-fit similarity (Umeyama 1991), with
   :func:`best_rotation` its rotation step (also used alone, uncentred).
@@ -49,6 +50,12 @@ def edges(faces: np.ndarray) -> np.ndarray:
     n = int(e.max()) + 1
     key = np.unique(e[:, 0] * n + e[:, 1])  # 1-D keys: ~10x faster than unique(axis=0), same order
     return np.stack([key // n, key % n], axis=1)
+
+
+def edge_length_percentile(points: Points, faces: Faces, q: float = 99.0) -> float:
+    """The ``q``-th percentile of a mesh's (unique) edge lengths."""
+    e = edges(faces)
+    return float(np.percentile(np.linalg.norm(points[e[:, 1]] - points[e[:, 0]], axis=1), q))
 
 
 def similarity_fit(src: Points, dst: Points, weights: Scalars | None = None,
