@@ -10,7 +10,7 @@ from scipy.spatial.transform import Rotation
 
 from wearfit_usd.dress.apply import apply
 from wearfit_usd.dress.binding import bind
-from wearfit_usd.dress.corrections import LooseSmoother, edge_weights
+from wearfit_usd.dress.corrections import LooseSmoother
 from wearfit_usd.dress.plan import plan
 from wearfit_usd.geometry.mesh import adjacency, edges
 from wearfit_usd.io.bvh import read_bvh
@@ -136,7 +136,7 @@ def test_the_ponytail_keeps_its_strands_together_in_a_walks_first_frame(ref_fema
     ratio = _edge_ratio(pl, apply(pl, posed, ref_female.body.faces, penetration=False)[0], "ponytail01")
     assert np.percentile(ratio, 99) < 2.5
     # strands a fraction of a millimetre apart weigh each other more in the
-    # smoothing (corrections.edge_weights): 4.1x at most with uniform weights
+    # smoothing (geometry.mesh.short_edge_weights): 4.1x at most with uniform weights
     assert ratio.max() < 3.0
 
 
@@ -152,22 +152,6 @@ def test_a_suit_mid_stride_is_smoothed_in_its_patches_frames(ref_male, bvh_dir):
     pts = apply(pl, posed, ref_male.body.faces, penetration=False)[0]
     assert np.abs(pts - pl.ref_points).max() < 0.5
     assert _edge_ratio(pl, pts, "male_casualsuit01").max() < 4.0
-
-
-def test_edge_weights_known_answers():
-    # a unit square split into two triangles, and a vertex 1 mm from corner 0
-    pts = np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0.001, 0, 0]])
-    faces = np.array([[0, 1, 2], [0, 2, 3], [0, 4, 3]])
-    nb = adjacency(faces, len(pts))
-    w = edge_weights(nb, pts)
-    assert (w != w.T).nnz == 0
-    # the square's edges weigh 1 (none under half its vertices' mean edge)
-    for i, j in [(0, 1), (1, 2), (2, 3), (0, 3), (0, 2)]:
-        assert w[i, j] == 1.0
-    # 0-4: 1 mm; vertex 4's edges: 1 mm and 1 m (mean 0.5005), vertex 0's: 1, 1, sqrt 2, 0.001
-    h0 = (1 + 1 + np.sqrt(2) + 0.001) / 4
-    h4 = (0.001 + np.sqrt(1.0 + 0.001 ** 2)) / 2
-    np.testing.assert_allclose(w[0, 4], (0.5 * min(h0, h4) / 0.001) ** 2)
 
 
 def _strip(gap=0.0008):

@@ -10,7 +10,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..geometry.closest import SurfaceQuery, VertexNormals
-from ..geometry.mesh import edge_length_percentile
+from ..geometry.mesh import edge_length_percentile, short_edge_weights
 from ..kernels import HAVE_NUMBA, GuardBody, GuardState, RadiusGrid, face_normal_sums, guard_estimate, guard_frame
 
 
@@ -43,7 +43,11 @@ class PenetrationGuard:
     vertex stood out of its neighbours in a spike and the edges round it
     tore (the guard alone took the hot pants and top of
     ref_female_longskirt walking on body_female_heavy from stretch p99
-    1.75x to 2.21x).
+    1.75x to 2.21x). A neighbour over an edge much shorter than the
+    vertex's others weighs more (:func:`geometry.mesh.short_edge_weights`,
+    from ``item_points0``): two vertices 0.6 mm apart at the hot pants'
+    waist, pushed 30 and 6 mm out of an arm crossing the hip, had averaged
+    their pushes with their wider neighbours alike and stood 23 mm apart.
 
     With ``max_clearance`` the clearance a pushed vertex gets back is capped:
     ``min(c0, max_clearance)``. The guard keeps items out of the body, not
@@ -54,11 +58,11 @@ class PenetrationGuard:
     the neck (the mannequin's arms-held-high dance: the ponytail's median
     push 29 mm, most of it into the body).
 
-    With ``check_pushes`` every frame's new pushes are checked against the
-    whole body (:meth:`_checked`): needed on coarse bodies, where the
-    frame's few candidate triangles miss the closest one; on a dense body
-    it fixes a few pushes a frame for about 5 ms a frame (12k item vertices),
-    so :func:`animate.try_on.animate` asks for it on coarse bodies only.
+    With ``check_pushes`` (the default; :func:`animate.try_on.animate`
+    uses it on every body) every frame's new pushes are checked against the
+    whole body (:meth:`_checked`): the frame's few candidate triangles miss
+    the closest one on coarse bodies and where body parts cross (an arm
+    across the hip), and a push from a wrong surface tears the item.
 
     body_faces (T, 3); body_points0 (N, 3) and item_points0 (M, 3) at the
     dressed frame; margin, radius and max_clearance in metres.
@@ -75,9 +79,10 @@ class PenetrationGuard:
         if item_neighbours is not None and item_neighbours.shape != (len(item_points0),) * 2:
             raise ValueError(f"item_neighbours is {item_neighbours.shape} for {len(item_points0)} item points")
         if item_neighbours is not None and item_neighbours.nnz:
-            a = item_neighbours.tocsr().astype(np.float64)
-            a.data[:] = 1.0
-            deg = np.maximum(np.asarray(a.sum(axis=1)).ravel(), 1.0)
+            # neighbours over short edges weigh more (geometry.mesh.short_edge_weights)
+            a = short_edge_weights(item_neighbours, item_points0)
+            deg = np.asarray(a.sum(axis=1)).ravel()
+            deg[deg <= 0] = 1.0
             self._walk = (sp.diags(1.0 / deg) @ a).tocsr()  # neighbour average
         self.radius = float(radius)
         self.compiled = HAVE_NUMBA if compiled is None else bool(compiled and HAVE_NUMBA)
@@ -237,14 +242,17 @@ class PenetrationGuard:
 
     def _checked(self, item_points: np.ndarray, out: np.ndarray, before=None) -> np.ndarray:
         """The pushed vertices checked against the whole body (the closest
-        point among a wider set of triangles, :meth:`_check_candidates`): one
-        that its push left inside, or put inside, is pushed again from where
-        it was, along the normal of its true closest feature, to its
-        clearance; one that is outside enough there is not pushed at all.
-        The frame's few candidate triangles (frame 0's and the ring of the
-        nearest body vertex) miss the closest one where the body's triangles
-        are large or its parts overlap (a low-poly game body): the push then
-        followed a wrong normal, into the body. Updates the push state;
+        point among a wider set of triangles, :meth:`_check_candidates`),
+        where they were before the push: one inside, or within its
+        clearance, is pushed from there along the normal of its true closest
+        feature, to its clearance; one that is outside by its clearance is
+        not pushed at all. The frame's few candidate triangles (frame 0's and
+        the ring of the nearest body vertex) miss the closest one where the
+        body's triangles are large or its parts overlap: on a low-poly game
+        body the push followed a wrong normal, into the body; on a dense one,
+        with an arm crossing the hip, a waistband vertex 5 mm outside the hip
+        was found inside the arm and pushed 28 mm through it, dragging its
+        neighbours 0.6 mm away into the body. Updates the push state;
         returns ``out``. ``before``: the pushes (M,) and directions (M, 3)
         the frame started from, decayed; only the pushes this frame set or
         turned are checked (a push that only decays was checked when it was
@@ -254,17 +262,14 @@ class PenetrationGuard:
         pushed = self.push > 0
         if before is not None:
             pushed &= (np.abs(self.push - before[0]) > 1e-9) | np.any(self.direction != before[1], axis=1)
-        idx = np.flatnonzero(pushed)
-        if len(idx) == 0:
-            return out
-        after = self.query.closest(out[idx], candidates=self._check_candidates(idx, out[idx]), ring=False)
-        sel = idx[after["distance"] < self.margin]
+        sel = np.flatnonzero(pushed)
         if len(sel) == 0:
             return out
         res = self.query.closest(item_points[sel], candidates=self._check_candidates(sel, item_points[sel]),
                                  ring=False)
         n = res["normal"] / np.maximum(np.linalg.norm(res["normal"], axis=1, keepdims=True), 1e-12)
         p = np.maximum(self.target[sel] - res["distance"], 0.0)
+        p[p < 1e-5] = 0.0
         self.push[sel] = p
         self.direction[sel] = n
         out[sel] = item_points[sel] + p[:, None] * n
@@ -311,12 +316,13 @@ class PenetrationGuard:
         if len(pushed) == 0:
             return out
         d = d0
-        for _ in range(self.SMOOTH_ITERATIONS):
-            d = 0.5 * d + 0.5 * (self._walk @ d)
         n0 = np.linalg.norm(d0[pushed], axis=1)
         u = d0[pushed] / np.maximum(n0, 1e-12)[:, None]
-        short = n0 - np.einsum("ij,ij->i", d[pushed], u)
-        d[pushed] += np.maximum(short, 0.0)[:, None] * u
+        for _ in range(self.SMOOTH_ITERATIONS):
+            d = 0.5 * d + 0.5 * (self._walk @ d)
+            # every pushed vertex keeps at least its own push, at each step
+            short = n0 - np.einsum("ij,ij->i", d[pushed], u)
+            d[pushed] += np.maximum(short, 0.0)[:, None] * u
         return before + d
 
     def inside_fraction(self, body_points: np.ndarray, item_points: np.ndarray) -> float:

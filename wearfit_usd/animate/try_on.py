@@ -190,7 +190,7 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
         raise USDInputError(reference.source, "the reference has no skeleton")
     if not reference.items:
         raise USDInputError(reference.source, "the reference holds no wearable items (no Mesh besides the body)")
-    coarse = coarse_body(reference, target)  # also asks the penetration guard to check its pushes
+    coarse = coarse_body(reference, target)
     pose = dress_pose_for(reference, target, opt.dress_pose, coarse=coarse)
     if pose != opt.dress_pose:
         opt = replace(opt, dress_pose=pose)
@@ -336,7 +336,7 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
         pushes = opt.mode == "bind" and cloth is None and rigid is None
         guard = PenetrationGuard(body.faces, base_body, frame0_items, margin=opt.penetration_margin,
                                  item_neighbours=frame_plan.mesh.neighbours if pushes else None,
-                                 max_clearance=GUARD_MAX_CLEARANCE, check_pushes=coarse)
+                                 max_clearance=GUARD_MAX_CLEARANCE)
     if cloth is not None or rigid is not None:
         # the cloth keeps its own distance from the body: the guard would pull
         # it back to its frame-0 clearance; "new penetration" still counts it.
@@ -351,7 +351,7 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
         nb = frame_plan.mesh.neighbours.tocsr()
         push_guard = PenetrationGuard(body.faces, base_body, all_base[pushed_rows], margin=opt.penetration_margin,
                                       item_neighbours=nb[pushed_rows][:, pushed_rows],
-                                      max_clearance=GUARD_MAX_CLEARANCE, check_pushes=coarse)
+                                      max_clearance=GUARD_MAX_CLEARANCE)
     measures = None
     if opt.measure_every and opt.motion_measures:
         t0 = time.perf_counter()

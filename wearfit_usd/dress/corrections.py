@@ -15,6 +15,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from ..geometry.closest import SurfaceQuery
+from ..geometry.mesh import short_edge_weights
 from ..geometry.sparse_solve import SPDSolver
 from ..kernels import assign_rows, similarity_place
 from .rigid_parts import RigidParts
@@ -23,8 +24,6 @@ LOOSE_START = 0.01   # m: vertices farther than this from the body start to be s
 LOOSE_FULL = 0.04    # m: fully smoothed from here on
 LOOSE_ITERATIONS = 40  # diffusion time, in half-steps of neighbour averaging
 PATCH_MIN = 8  # vertices a loose patch (with its tight neighbours) needs for a frame of its own
-SHORT_EDGE_RATIO = 0.5  # item edges shorter than this times their vertices' mean edge weigh more
-EDGE_FLOOR = 1e-4  # m: shorter item edges weigh as this long in the smoothing
 
 
 def looseness(ref_clearance: np.ndarray, skirt_mask: np.ndarray | None = None) -> np.ndarray:
@@ -40,25 +39,6 @@ def smoothstep(s: np.ndarray) -> np.ndarray:
     """(n,) ``3 s^2 - 2 s^3`` of s clipped to [0, 1]."""
     s = np.clip(s, 0.0, 1.0)
     return s * s * (3.0 - 2.0 * s)
-
-
-def edge_weights(neighbours: sp.spmatrix, points: np.ndarray, ratio: float = SHORT_EDGE_RATIO,
-                 floor: float = EDGE_FLOOR) -> sp.csr_matrix:
-    """(M, M) the adjacency ``neighbours`` weighted for the loose smoothing:
-    entry ``(i, j)`` is ``max(1, (ratio * min(h_i, h_j) / max(l_ij, floor))^2)``
-    with ``l_ij`` the edge's length and ``h_i`` the mean length of vertex
-    i's edges; points (M, 3) in metres. Edges of a regular mesh weigh 1;
-    an edge much shorter than its vertices' others (a narrow strip of
-    triangles) weighs as ``1 / length^2`` against them."""
-    a = sp.csr_matrix(neighbours, dtype=np.float64, copy=True)
-    p = np.asarray(points, dtype=np.float64)
-    if p.shape != (a.shape[0], 3):
-        raise ValueError(f"points: expected ({a.shape[0]}, 3), got {p.shape}")
-    rows = np.repeat(np.arange(a.shape[0]), np.diff(a.indptr))
-    length = np.linalg.norm(p[a.indices] - p[rows], axis=1)
-    h = np.bincount(rows, weights=length, minlength=a.shape[0]) / np.maximum(np.diff(a.indptr), 1)
-    a.data = np.maximum(1.0, (ratio * np.minimum(h[rows], h[a.indices]) / np.maximum(length, floor)) ** 2)
-    return a
 
 
 class LooseSmoother:
@@ -115,7 +95,7 @@ class LooseSmoother:
     patches and the displacement is taken from the reference as it is.
 
     ``points`` (M, 3), the item points the plan is built on: with them the
-    averaging weighs a neighbour over a short edge more (:func:`edge_weights`:
+    averaging weighs a neighbour over a short edge more (:func:`geometry.mesh.short_edge_weights`:
     ``1 / length^2`` for edges under half their vertices' mean length, 1
     otherwise), ``walk = D^-1 W``, ``L = D - W`` with ``W`` the weighted
     adjacency and ``D`` its row sums; without them every neighbour weighs
@@ -147,7 +127,7 @@ class LooseSmoother:
         if points is None:
             a.data[:] = 1.0
         else:
-            a = edge_weights(a, points)
+            a = short_edge_weights(a, points)
         deg = np.asarray(a.sum(axis=1)).ravel()
         self.free = idx
         # the tight neighbours of loose vertices: boundary values (d = d0)

@@ -18,6 +18,8 @@ from ..types import Faces, Mask, Matrix3, Points, Scalars
 
 DEGENERATE_REL = 1e-12  # a triangle whose doubled area is below this x the mesh's median is degenerate
 
+SHORT_EDGE_RATIO = 0.5  # edges shorter than this times their vertices' mean edge weigh more
+EDGE_FLOOR = 1e-4  # m: shorter edges weigh as this long
 
 
 def adjacency(faces: np.ndarray, n: int) -> sp.csr_matrix:
@@ -33,6 +35,26 @@ def adjacency(faces: np.ndarray, n: int) -> sp.csr_matrix:
 def components(faces: np.ndarray, n: int) -> np.ndarray:
     """(n,) connected-component label of each vertex."""
     return connected_components(adjacency(faces, n), directed=False)[1]
+
+
+def short_edge_weights(neighbours: sp.spmatrix, points: np.ndarray, ratio: float = SHORT_EDGE_RATIO,
+                       floor: float = EDGE_FLOOR) -> sp.csr_matrix:
+    """(M, M) the adjacency ``neighbours`` of a mesh weighted for averaging
+    over it (the loose smoothing, the penetration guard's spread):
+    entry ``(i, j)`` is ``max(1, (ratio * min(h_i, h_j) / max(l_ij, floor))^2)``
+    with ``l_ij`` the edge's length and ``h_i`` the mean length of vertex
+    i's edges; points (M, 3) in metres. Edges of a regular mesh weigh 1;
+    an edge much shorter than its vertices' others (a narrow strip of
+    triangles) weighs as ``1 / length^2`` against them."""
+    a = sp.csr_matrix(neighbours, dtype=np.float64, copy=True)
+    p = np.asarray(points, dtype=np.float64)
+    if p.shape != (a.shape[0], 3):
+        raise ValueError(f"points: expected ({a.shape[0]}, 3), got {p.shape}")
+    rows = np.repeat(np.arange(a.shape[0]), np.diff(a.indptr))
+    length = np.linalg.norm(p[a.indices] - p[rows], axis=1)
+    h = np.bincount(rows, weights=length, minlength=a.shape[0]) / np.maximum(np.diff(a.indptr), 1)
+    a.data = np.maximum(1.0, (ratio * np.minimum(h[rows], h[a.indices]) / np.maximum(length, floor)) ** 2)
+    return a
 
 
 def same_topology(points_a: Points, faces_a: Faces, points_b: Points, faces_b: Faces) -> bool:
