@@ -6,7 +6,7 @@ the right to the right wall, a few millimetres apart on the item and
 centimetres apart on the body. Both walls are skin of one region, so no
 region seam (:mod:`seams`) blends them; when a leg swings the walls turn
 apart and the seam's edges, 2-3 mm long, opened to 16-25 mm in a walk's
-first frame (22x the body's own stretch under them at worst). The body does
+first frame (5-6x the body's own stretch under them). The body does
 not tear there: its surface runs down into the fold and back up, and its
 skin weights change along that longer path.
 

@@ -124,7 +124,8 @@ class DressPlan:
         rigid groups, also when :func:`repair.release_misfits` frees them);
     looseness: (M,) 0..1, how much each vertex's displacement is smoothed
         over the item mesh: 0 for tight parts (clearance kept exactly), 1 for
-        parts hanging far from the body;
+        parts hanging far from the body, and a band around the places where
+        an item bridges a fold of the body (:mod:`bridges`);
     smoother: the :class:`LooseSmoother` of that weight;
     layers: [(outer item, inner item, separation (n_outer,) m, inner vertex
         (n_outer,))] (:func:`layers.layer_gaps`);

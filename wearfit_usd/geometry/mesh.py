@@ -17,7 +17,6 @@ from scipy.sparse.csgraph import connected_components
 from ..types import Faces, Mask, Matrix3, Points, Scalars
 
 DEGENERATE_REL = 1e-12  # a triangle whose doubled area is below this x the mesh's median is degenerate
-
 SHORT_EDGE_RATIO = 0.5  # edges shorter than this times their vertices' mean edge weigh more
 EDGE_FLOOR = 1e-4  # m: shorter edges weigh as this long
 
