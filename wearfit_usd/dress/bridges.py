@@ -35,6 +35,8 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import dijkstra
 
+from .item_weights import weight_matrix
+
 BRIDGE_GRADIENT = 60.0  # joint-weight change (L1) per metre along an item edge that marks a bridge
 BRIDGE_BAND = 0.03  # m along the item: half-width of the smoothing band around a bridge
 
@@ -68,7 +70,7 @@ def item_joint_weights(triangles: np.ndarray, coefficients: np.ndarray, body_fac
     if ji.shape != jw.shape or ji.ndim != 2:
         raise ValueError(f"joint_indices {ji.shape} and joint_weights {jw.shape}: expected two (N, I) arrays")
     n, t, m = len(ji), len(faces), len(tri)
-    skin = sp.csr_matrix((jw.ravel(), (np.repeat(np.arange(n), ji.shape[1]), ji.ravel())), shape=(n, int(n_joints)))
+    skin = weight_matrix(ji, jw, int(n_joints))
     corners = sp.csr_matrix((np.full(3 * t, 1.0 / 3.0), (np.repeat(np.arange(t), 3), faces.ravel())), shape=(t, n))
     rows = sp.csr_matrix((c.ravel(), (np.repeat(np.arange(m), tri.shape[1]), tri.ravel())), shape=(m, t))
     return (rows @ (corners @ skin)).tocsr()

@@ -621,13 +621,14 @@ def plan(ref: Character, k: int = 5, use_regions: bool = True, rigid="auto", aut
         rigid_groups = [g for g, _ in keep]
         rigid_items = [n for n in rigid_items if n not in free_items]
     loose = loose_weights(items, offsets, skirts, ref_clear, rigid_groups, labels)
+    rigid_rows = group_mask(rigid_groups, len(pts))
     if use_regions and ref.skeleton is not None and body.joint_indices is not None:
         # places where neighbouring item vertices follow different joints
         # (an item bridging a fold of the body) are smoothed over a band
         omega = item_joint_weights(binding.triangles, binding.weights, body.faces, body.joint_indices,
                                    body.joint_weights, ref.skeleton.n_joints)
         bridged = bridge_weights(omega, pts, mesh.edges)
-        bridged[group_mask(rigid_groups, len(pts))] = 0.0
+        bridged[rigid_rows] = 0.0
         loose = np.maximum(loose, bridged)
     t3 = time.perf_counter()
     order = [(i, j, g) for i, j, g in layer_order(items, offsets, pts, ref_clear)
@@ -636,7 +637,7 @@ def plan(ref: Character, k: int = 5, use_regions: bool = True, rigid="auto", aut
                      ref_clearance=ref_clear, ref_foot=Footprint(foot["triangle"], foot["bary"]),
                      body_query=ref_query, regions=item_regions, mesh=mesh,
                      rigid_groups=rigid_groups, rigid_items=rigid_items,
-                     insets_kept=group_mask(rigid_groups, len(pts)),
+                     insets_kept=rigid_rows,
                      looseness=loose, smoother=LooseSmoother(mesh.neighbours, loose, bound=binding, points=pts),
                      layers=layer_gaps(ref_query, pts, offsets, order, ref_clear, foot=foot["point"]),
                      timings={"regions_s": t1 - t0, "bind_s": t2 - t1, "plan_rest_s": t3 - t2})
