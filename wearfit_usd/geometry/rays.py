@@ -31,35 +31,96 @@ def ray_triangle(orig: np.ndarray, dirs: np.ndarray, a: np.ndarray, b: np.ndarra
     return hit, t
 
 
+def _subdivision_centroids(n: int) -> np.ndarray:
+    """Barycentric coordinates (n*n, 3) of the centroids of the n x n
+    subdivision of a triangle (n*(n+1)/2 upright, n*(n-1)/2 inverted
+    sub-triangles, each the triangle scaled by 1/n)."""
+    i, j = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
+    up = (i + j) <= n - 1
+    down = (i + j) <= n - 2
+    u = np.concatenate([(i[up] + 1.0 / 3.0), (i[down] + 2.0 / 3.0)]) / n
+    v = np.concatenate([(j[up] + 1.0 / 3.0), (j[down] + 2.0 / 3.0)]) / n
+    return np.stack([1.0 - u - v, u, v], axis=1)
+
+
+def covering_points(tri: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """Points within ``radius`` of every point of every triangle.
+
+    A triangle whose farthest corner lies ``r`` from its centroid is
+    represented by the centroids of its ``n x n`` subdivision, ``n =
+    ceil(r / radius)``: each sub-triangle is the triangle scaled by ``1/n``,
+    and every point of a triangle lies within its centroid-to-farthest-corner
+    distance of its centroid (the distance is convex, so largest at a corner).
+
+    Parameters
+    ----------
+    tri : (F, 3, 3) triangle corners.
+    radius : covering radius (> 0).
+
+    Returns
+    -------
+    (points (S, 3), triangle of each point (S,) int).
+    """
+    cen = tri.mean(axis=1)
+    r = np.sqrt(np.max(np.einsum("fcj,fcj->fc", tri - cen[:, None], tri - cen[:, None]), axis=1))
+    n = np.maximum(1, np.ceil(r / radius - 1e-9)).astype(np.int64)
+    pts, owner = [cen[n == 1]], [np.flatnonzero(n == 1)]
+    for k in np.unique(n[n > 1]):
+        idx = np.flatnonzero(n == k)
+        bary = _subdivision_centroids(int(k))
+        pts.append(np.einsum("sc,fcj->fsj", bary, tri[idx]).reshape(-1, 3))
+        owner.append(np.repeat(idx, len(bary)))
+    return np.concatenate(pts), np.concatenate(owner)
+
+
 def cast_rays(orig: np.ndarray, dirs: np.ndarray, points: np.ndarray, faces: np.ndarray,
-              t_min: float, t_max: float, chunk: int = 1024):
+              t_min: float, t_max: float, chunk: int = 4096):
     """Nearest triangle of a mesh each ray segment meets.
 
     orig, dirs (R, 3) (dirs unit), mesh points (M, 3) and faces (F, 3);
-    segments from ``orig + t_min dirs`` to ``orig + t_max dirs``. Candidate
-    triangles: those whose centroid lies within half the segment plus the
-    largest centroid-to-corner distance of the mesh from the segment's
-    midpoint (a KD-tree over the centroids), tested exactly.
+    segments from ``orig + t_min dirs`` to ``orig + t_max dirs``.
+
+    Candidates come from two KD-trees: the triangles are covered by points
+    within a radius ``rho`` of all of their surface
+    (:func:`covering_points`; ``rho`` the median triangle's
+    centroid-to-corner distance, at least 1/32 of the segment), each segment
+    by ``k`` evenly spaced samples within ``h <= rho`` of all of it. A
+    segment meets a triangle only where a sample and a covering point lie
+    within ``h + rho`` of each other; those pairs are tested exactly. The
+    candidate volume is a chain of small balls along the segment, not one
+    ball round its middle as wide as the segment is long.
 
     Returns the hit triangle per ray (R,) int, -1 where none is met.
     """
     out = np.full(len(orig), -1, dtype=np.int64)
     if len(faces) == 0 or len(orig) == 0:
         return out
-    tri = points[faces]
+    orig = np.asarray(orig, dtype=np.float64)
+    dirs = np.asarray(dirs, dtype=np.float64)
+    tri = np.asarray(points, dtype=np.float64)[np.asarray(faces, dtype=np.int64)]
+    length = float(t_max - t_min)
     cen = tri.mean(axis=1)
-    reach = float(np.sqrt(np.max(np.einsum("fcj,fcj->fc", tri - cen[:, None], tri - cen[:, None]))))
-    tree = cKDTree(cen)
-    half = 0.5 * (t_max - t_min)
-    mid = orig + dirs * (0.5 * (t_min + t_max))
-    for s in range(0, len(orig), chunk):
-        sl = slice(s, min(len(orig), s + chunk))
-        lists = tree.query_ball_point(mid[sl], half + reach)
-        lens = np.fromiter((len(x) for x in lists), dtype=np.int64, count=len(lists))
-        if lens.sum() == 0:
+    reach = np.sqrt(np.max(np.einsum("fcj,fcj->fc", tri - cen[:, None], tri - cen[:, None]), axis=1))
+    rho = max(float(np.median(reach)), length / 32.0, 1e-9)
+    cover, owner = covering_points(tri, rho)
+    tree = cKDTree(cover)
+    k = max(1, int(np.ceil(length / (2.0 * rho))))
+    h = 0.5 * length / k
+    ts = t_min + (np.arange(k) + 0.5) * (length / k)
+    radius = (h + rho) * (1.0 + 1e-9) + 1e-12
+    n_tri = len(faces)
+    # only segments whose bounding box meets the mesh's
+    a, b = orig + dirs * t_min, orig + dirs * t_max
+    lo, hi = tri.min(axis=(0, 1)), tri.max(axis=(0, 1))
+    near = np.flatnonzero(np.all((np.minimum(a, b) <= hi) & (np.maximum(a, b) >= lo), axis=1))
+    for s in range(0, len(near), chunk):
+        rows = near[s:s + chunk]
+        samples = (orig[rows, None, :] + dirs[rows, None, :] * ts[None, :, None]).reshape(-1, 3)
+        pairs = cKDTree(samples).sparse_distance_matrix(tree, radius, output_type="ndarray")
+        if len(pairs) == 0:
             continue
-        cand = np.concatenate([np.asarray(x, dtype=np.int64) for x in lists if len(x)])
-        ray = np.repeat(np.arange(sl.start, sl.stop), lens)
+        key = np.unique(rows[pairs["i"] // k] * n_tri + owner[pairs["j"]])
+        ray, cand = key // n_tri, key % n_tri
         hit, t = ray_triangle(orig[ray], dirs[ray], tri[cand, 0], tri[cand, 1], tri[cand, 2], t_min, t_max)
         if not hit.any():
             continue

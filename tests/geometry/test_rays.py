@@ -1,0 +1,56 @@
+"""The coverage rays' candidate search (geometry.rays): exact against brute force."""
+import numpy as np
+
+from wearfit_usd.geometry.rays import cast_rays, covering_points, ray_triangle
+
+
+def _brute(orig, dirs, pts, faces, t0, t1):
+    r = np.repeat(np.arange(len(orig)), len(faces))
+    t = np.tile(np.arange(len(faces)), len(orig))
+    hit, tt = ray_triangle(orig[r], dirs[r], pts[faces[t, 0]], pts[faces[t, 1]], pts[faces[t, 2]], t0, t1)
+    hit = hit.reshape(len(orig), len(faces))
+    return hit, np.where(hit, np.abs(tt.reshape(len(orig), len(faces))), np.inf)
+
+
+def test_covering_points_cover_every_point_of_every_triangle():
+    rng = np.random.default_rng(0)
+    # triangles from 1 mm to 30 cm, some slivers
+    tri = rng.normal(size=(60, 3, 3)) * np.geomspace(0.001, 0.3, 60)[:, None, None]
+    tri[:5, 2] = tri[:5, 0] + 1e-4 * (tri[:5, 1] - tri[:5, 0])
+    radius = 0.01
+    pts, owner = covering_points(tri, radius)
+    assert owner.min() == 0 and owner.max() == len(tri) - 1
+    assert len(pts) > 5 * len(tri)  # the big ones were subdivided
+    w = rng.dirichlet(np.ones(3), size=400)
+    for f in range(len(tri)):
+        q = w @ tri[f]
+        mine = pts[owner == f]
+        d = np.linalg.norm(q[:, None] - mine[None], axis=2).min(axis=1)
+        assert d.max() <= radius * (1 + 1e-9), f
+
+
+def test_cast_rays_long_segments_and_mixed_triangle_sizes():
+    """Segments 100x longer than the median triangle (the hanging parts'
+    50 cm rays against a 5 mm mesh) and a few triangles 60x the median."""
+    rng = np.random.default_rng(7)
+    g = np.linspace(-0.1, 0.1, 21)
+    x, z = np.meshgrid(g, g)
+    pts = np.stack([x.ravel(), 0.03 * np.sin(20 * x.ravel()), z.ravel()], axis=1)
+    faces = []
+    for i in range(20):
+        for j in range(20):
+            a = i * 21 + j
+            faces += [[a, a + 1, a + 22], [a, a + 22, a + 21]]
+    big = np.array([[-0.3, 0.2, -0.3], [0.3, 0.25, -0.3], [0.0, 0.2, 0.3]])
+    pts = np.concatenate([pts, big])
+    faces = np.array(faces + [[441, 442, 443]])
+    orig = rng.uniform(-0.15, 0.15, (500, 3))
+    orig[:, 1] = rng.uniform(-0.4, 0.0, 500)
+    dirs = rng.normal(size=(500, 3)) * [0.3, 1.0, 0.3]
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    got = cast_rays(orig, dirs, pts, faces, -0.005, 0.5, chunk=61)
+    hit, tt = _brute(orig, dirs, pts, faces, -0.005, 0.5)
+    assert np.array_equal(got >= 0, hit.any(axis=1))
+    assert 100 < hit.any(axis=1).sum() < 500 and hit[:, -1].sum() > 10
+    rows = np.flatnonzero(got >= 0)
+    assert np.allclose(tt[rows, got[rows]], tt[rows].min(axis=1))
