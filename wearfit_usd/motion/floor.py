@@ -14,7 +14,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from .skinning import skin_points, skinning_matrices
+from .skinning import Skinner, skinning_matrices
 
 #: ``--floor`` choices: "auto" (first frame on the rest floor) or "keep"
 FLOOR_MODES = ("auto", "keep")
@@ -44,8 +44,11 @@ def lowest_points(body_points, joint_indices, joint_weights, bind_world, world, 
     world = np.asarray(world)
     sel = np.arange(world.shape[0]) if frames is None else np.asarray(frames, dtype=int)
     mats = skinning_matrices(bind_world, world[sel])
-    return np.array([skin_points(body_points, joint_indices, joint_weights, m)[:, 1].min()
-                     for m in mats])
+    if len(mats) == 0:
+        return np.zeros(0)
+    # one skinning matrix for every frame; only the heights (column Y) are needed
+    sk = Skinner(body_points, joint_indices, joint_weights, mats.shape[-3])
+    return (sk.matrix @ mats[:, :, :, 1].reshape(len(mats), -1).T).min(axis=0)
 
 
 def floor_shift(body, skeleton, world, slack: float = FRAME0_SLACK_M, samples: int = 60) -> float:
