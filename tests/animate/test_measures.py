@@ -257,7 +257,10 @@ def test_layer_coming_through_another_item():
     assert sheet_measures([("inner", sp_, sf)])(BODY_PLANE[0], sp_)[0]["through_pct"] is None
 
 
-def test_cast_rays_matches_brute_force():
+@pytest.mark.parametrize("small_rays", [0, 10**9], ids=["kd-trees", "pairwise boxes"])
+def test_cast_rays_matches_brute_force(monkeypatch, small_rays):
+    from wearfit_usd.geometry import rays
+    monkeypatch.setattr(rays, "SMALL_RAYS", small_rays)
     rng = np.random.default_rng(3)
     pts = rng.uniform(-0.1, 0.1, (300, 3))
     faces = rng.integers(0, 300, (200, 3))

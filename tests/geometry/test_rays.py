@@ -1,6 +1,8 @@
 """The coverage rays' candidate search (geometry.rays): exact against brute force."""
 import numpy as np
+import pytest
 
+from wearfit_usd.geometry import rays
 from wearfit_usd.geometry.rays import cast_rays, covering_points, ray_triangle
 
 
@@ -29,9 +31,13 @@ def test_covering_points_cover_every_point_of_every_triangle():
         assert d.max() <= radius * (1 + 1e-9), f
 
 
-def test_cast_rays_long_segments_and_mixed_triangle_sizes():
+@pytest.mark.parametrize("small_rays", [0, 10**9], ids=["kd-trees", "pairwise boxes"])
+def test_cast_rays_long_segments_and_mixed_triangle_sizes(monkeypatch, small_rays):
     """Segments 100x longer than the median triangle (the hanging parts'
-    50 cm rays against a 5 mm mesh) and a few triangles 60x the median."""
+    50 cm rays against a 5 mm mesh) and a few triangles 60x the median;
+    both search paths (KD-trees, or every pair's bounding boxes for few
+    rays x triangles)."""
+    monkeypatch.setattr(rays, "SMALL_RAYS", small_rays)
     rng = np.random.default_rng(7)
     g = np.linspace(-0.1, 0.1, 21)
     x, z = np.meshgrid(g, g)

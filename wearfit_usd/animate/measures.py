@@ -240,10 +240,16 @@ class MotionMeasures:
             h &= t <= reach[ray]
             hit[ray[h]] = True
             miss = np.flatnonzero(~hit)
-        for r in np.unique(reach[miss]):
-            m = miss[reach[miss] == r]
-            again = cast_rays(o[m], d[m], item_points, f, -self.inset, float(r))
-            hit[m] = again >= 0
+        if len(miss):
+            # one search out to the longest reach: the nearest hit (smallest
+            # |t|) lies within a ray's own reach whenever any hit does
+            r = float(reach[miss].max())
+            again = cast_rays(o[miss], d[miss], item_points, f, -self.inset, r)
+            m = miss[again >= 0]
+            if len(m):
+                tc = item_points[f[again[again >= 0]]]
+                h, t = ray_triangle(o[m], d[m], tc[:, 0], tc[:, 1], tc[:, 2], -self.inset, r)
+                hit[m] = h & (t <= reach[m])
         return 100.0 * float(np.sum(~hit)) / len(v)
 
     def __call__(self, body_points: np.ndarray, item_points: np.ndarray) -> list[dict]:

@@ -73,6 +73,41 @@ def covering_points(tri: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndar
     return np.concatenate(pts), np.concatenate(owner)
 
 
+#: rays up to which :func:`cast_rays` tests bounding boxes pair by pair
+#: instead of building its KD-trees (the coverage measure re-casting the
+#: rays that missed their triangle's ring): both cost in proportion to the
+#: triangles, the pairs 13 ns per ray and triangle, the trees about 2.3 us per
+#: triangle (measured on a 16,672-triangle suit and 3,344-triangle hair)
+SMALL_RAYS = 150
+
+
+def _nearest_hits(ray, cand, t, out):
+    """out[ray] = the candidate of the nearest hit (smallest |t|) of each ray."""
+    order = np.lexsort((np.abs(t), ray))
+    ray, cand = ray[order], cand[order]
+    first = np.concatenate([[True], ray[1:] != ray[:-1]])
+    out[ray[first]] = cand[first]
+    return out
+
+
+def _cast_few(orig, dirs, tri, t_min, t_max, out):
+    """:func:`cast_rays` for few rays x triangles: every pair whose bounding
+    boxes (the segment's, the triangle's) overlap is tested exactly."""
+    a, b = orig + dirs * t_min, orig + dirs * t_max
+    seg_lo, seg_hi = np.minimum(a, b), np.maximum(a, b)
+    tri_lo, tri_hi = tri.min(axis=1), tri.max(axis=1)
+    ok = np.ones((len(orig), len(tri)), dtype=bool)
+    for c in range(3):
+        ok &= (tri_lo[None, :, c] <= seg_hi[:, None, c]) & (tri_hi[None, :, c] >= seg_lo[:, None, c])
+    ray, cand = np.nonzero(ok)
+    if len(ray) == 0:
+        return out
+    hit, t = ray_triangle(orig[ray], dirs[ray], tri[cand, 0], tri[cand, 1], tri[cand, 2], t_min, t_max)
+    if hit.any():
+        _nearest_hits(ray[hit], cand[hit], t[hit], out)
+    return out
+
+
 def cast_rays(orig: np.ndarray, dirs: np.ndarray, points: np.ndarray, faces: np.ndarray,
               t_min: float, t_max: float, chunk: int = 4096):
     """Nearest triangle of a mesh each ray segment meets.
@@ -99,6 +134,8 @@ def cast_rays(orig: np.ndarray, dirs: np.ndarray, points: np.ndarray, faces: np.
     dirs = np.asarray(dirs, dtype=np.float64)
     tri = np.asarray(points, dtype=np.float64)[np.asarray(faces, dtype=np.int64)]
     length = float(t_max - t_min)
+    if len(orig) <= SMALL_RAYS:
+        return _cast_few(orig, dirs, tri, t_min, t_max, out)
     cen = tri.mean(axis=1)
     reach = np.sqrt(np.max(np.einsum("fcj,fcj->fc", tri - cen[:, None], tri - cen[:, None]), axis=1))
     rho = max(float(np.median(reach)), length / 32.0, 1e-9)
@@ -124,9 +161,5 @@ def cast_rays(orig: np.ndarray, dirs: np.ndarray, points: np.ndarray, faces: np.
         hit, t = ray_triangle(orig[ray], dirs[ray], tri[cand, 0], tri[cand, 1], tri[cand, 2], t_min, t_max)
         if not hit.any():
             continue
-        ray, cand, t = ray[hit], cand[hit], t[hit]
-        order = np.lexsort((np.abs(t), ray))  # nearest hit first within each ray
-        ray, cand = ray[order], cand[order]
-        first = np.concatenate([[True], ray[1:] != ray[:-1]])
-        out[ray[first]] = cand[first]
+        _nearest_hits(ray[hit], cand[hit], t[hit], out)
     return out
