@@ -123,7 +123,9 @@ def cast_rays(orig: np.ndarray, dirs: np.ndarray, points: np.ndarray, faces: np.
     segment meets a triangle only where a sample and a covering point lie
     within ``h + rho`` of each other; those pairs are tested exactly. The
     candidate volume is a chain of small balls along the segment, not one
-    ball round its middle as wide as the segment is long.
+    ball round its middle as wide as the segment is long. Up to
+    :data:`SMALL_RAYS` rays, every ray's and triangle's bounding boxes are
+    compared instead (cheaper than the trees for a few rays).
 
     Returns the hit triangle per ray (R,) int, -1 where none is met.
     """
