@@ -43,7 +43,15 @@ def _subdivision_centroids(n: int) -> np.ndarray:
     return np.stack([1.0 - u - v, u, v], axis=1)
 
 
-def covering_points(tri: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+def centroid_reach(tri: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Centroids (F, 3) of triangles (F, 3, 3) and the distance (F,) from
+    each centroid to its triangle's farthest corner."""
+    cen = tri.mean(axis=1)
+    d = tri - cen[:, None]
+    return cen, np.sqrt(np.max(np.einsum("fcj,fcj->fc", d, d), axis=1))
+
+
+def covering_points(tri: np.ndarray, radius: float, centres=None) -> tuple[np.ndarray, np.ndarray]:
     """Points within ``radius`` of every point of every triangle.
 
     A triangle whose farthest corner lies ``r`` from its centroid is
@@ -56,13 +64,13 @@ def covering_points(tri: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndar
     ----------
     tri : (F, 3, 3) triangle corners.
     radius : covering radius (> 0).
+    centres : :func:`centroid_reach` of ``tri`` if already known.
 
     Returns
     -------
     (points (S, 3), triangle of each point (S,) int).
     """
-    cen = tri.mean(axis=1)
-    r = np.sqrt(np.max(np.einsum("fcj,fcj->fc", tri - cen[:, None], tri - cen[:, None]), axis=1))
+    cen, r = centroid_reach(tri) if centres is None else centres
     n = np.maximum(1, np.ceil(r / radius - 1e-9)).astype(np.int64)
     pts, owner = [cen[n == 1]], [np.flatnonzero(n == 1)]
     for k in np.unique(n[n > 1]):
@@ -90,11 +98,10 @@ def _nearest_hits(ray, cand, t, out):
     return out
 
 
-def _cast_few(orig, dirs, tri, t_min, t_max, out):
+def _cast_few(orig, dirs, tri, seg_lo, seg_hi, t_min, t_max, out):
     """:func:`cast_rays` for few rays x triangles: every pair whose bounding
-    boxes (the segment's, the triangle's) overlap is tested exactly."""
-    a, b = orig + dirs * t_min, orig + dirs * t_max
-    seg_lo, seg_hi = np.minimum(a, b), np.maximum(a, b)
+    boxes (the segment's, seg_lo / seg_hi (R, 3), the triangle's) overlap is
+    tested exactly."""
     tri_lo, tri_hi = tri.min(axis=1), tri.max(axis=1)
     ok = np.ones((len(orig), len(tri)), dtype=bool)
     for c in range(3):
@@ -135,13 +142,14 @@ def cast_rays(orig: np.ndarray, dirs: np.ndarray, points: np.ndarray, faces: np.
     orig = np.asarray(orig, dtype=np.float64)
     dirs = np.asarray(dirs, dtype=np.float64)
     tri = np.asarray(points, dtype=np.float64)[np.asarray(faces, dtype=np.int64)]
-    length = float(t_max - t_min)
+    a, b = orig + dirs * t_min, orig + dirs * t_max
+    seg_lo, seg_hi = np.minimum(a, b), np.maximum(a, b)
     if len(orig) <= SMALL_RAYS:
-        return _cast_few(orig, dirs, tri, t_min, t_max, out)
-    cen = tri.mean(axis=1)
-    reach = np.sqrt(np.max(np.einsum("fcj,fcj->fc", tri - cen[:, None], tri - cen[:, None]), axis=1))
-    rho = max(float(np.median(reach)), length / 32.0, 1e-9)
-    cover, owner = covering_points(tri, rho)
+        return _cast_few(orig, dirs, tri, seg_lo, seg_hi, t_min, t_max, out)
+    length = float(t_max - t_min)
+    centres = centroid_reach(tri)
+    rho = max(float(np.median(centres[1])), length / 32.0, 1e-9)
+    cover, owner = covering_points(tri, rho, centres)
     tree = cKDTree(cover)
     k = max(1, int(np.ceil(length / (2.0 * rho))))
     h = 0.5 * length / k
@@ -149,9 +157,8 @@ def cast_rays(orig: np.ndarray, dirs: np.ndarray, points: np.ndarray, faces: np.
     radius = (h + rho) * (1.0 + 1e-9) + 1e-12
     n_tri = len(faces)
     # only segments whose bounding box meets the mesh's
-    a, b = orig + dirs * t_min, orig + dirs * t_max
     lo, hi = tri.min(axis=(0, 1)), tri.max(axis=(0, 1))
-    near = np.flatnonzero(np.all((np.minimum(a, b) <= hi) & (np.maximum(a, b) >= lo), axis=1))
+    near = np.flatnonzero(np.all((seg_lo <= hi) & (seg_hi >= lo), axis=1))
     for s in range(0, len(near), chunk):
         rows = near[s:s + chunk]
         samples = (orig[rows, None, :] + dirs[rows, None, :] * ts[None, :, None]).reshape(-1, 3)
