@@ -12,6 +12,7 @@ from wearfit_usd.animate.cloth import (
     ClothSolver,
     colour_edges,
     default_collider,
+    inner_layer_field,
     inner_layer_margin,
     tethers,
 )
@@ -337,3 +338,85 @@ def test_inner_layer_margin_known_answers():
     # no bound vertices: nothing kept
     assert not inner_layer_margin(plan, np.ones(7), items, particles, samples, cloth, np.full(4, 0.03),
                                   body, normals).any()
+
+
+def test_inner_layer_field_known_answers():
+    """Over a flat skin (y = 0, normals +y, vertices every 2 cm): a top
+    (item 0) whose vertex A (x = 0, 1 cm up) lies under the skirt's vertex
+    there (item 1, 1.2 cm up), B (x = 0.2, 4 cm) over the skirt's vertex
+    there (2 cm: a hem over the skirt), C (x = 0.6) with no skirt near and
+    no decided vertex near, D (x = 0.055, 1.5 cm) with no skirt over its
+    spot but A 5.5 cm away: under, as A is. A shoe's vertex (item 2,
+    wholly rigid) under the skirt at x = 0 is left out. The skirt keeps
+    1.3 cm (A + LAYER_GAP) within 3 cm of A's spot, 1.8 cm round D's, 0
+    elsewhere; its sample at x = 0 sits 1 mm under the field at frame 0:
+    allowed."""
+    gx, gz = np.meshgrid(np.arange(-0.1, 0.9001, 0.02), np.arange(-0.1, 0.1001, 0.02), indexing="ij")
+    body = np.stack([gx.ravel(), np.zeros(gx.size), gz.ravel()], axis=1)
+    normals = np.tile([0.0, 1.0, 0.0], (len(body), 1))
+    top = np.array([[0.0, 0.01, 0.0], [0.2, 0.04, 0.0], [0.6, 0.012, 0.0], [0.055, 0.015, 0.0]])
+    skirt = np.array([[0.0, 0.012, 0.0], [0.2, 0.02, 0.0], [0.4, 0.005, 0.0]])
+    shoe = np.array([[0.0, 0.02, 0.0]])
+    items = np.concatenate([top, skirt, shoe])
+    plan = SimpleNamespace(offsets=np.array([0, 4, 7, 8]),
+                           items=[SimpleNamespace(name=n) for n in ("top", "skirt", "shoe")],
+                           wholly_rigid=lambda: {"shoe"})
+    w = np.array([0, 0, 0, 0, 1, 1, 0, 0], dtype=float)
+    particles = np.array([4, 5])
+    samples = np.array([[0, 0], [1, 1]])
+    at = lambda x: int(np.argmin(np.linalg.norm(body - [x, 0.0, 0.0], axis=1)))  # noqa: E731
+    rows, allow, field = inner_layer_field(plan, w, items, particles, samples, np.array([0.012, 0.02]),
+                                           np.array([at(0.0), at(0.2)]), body, normals)
+    np.testing.assert_array_equal(rows, [0, 0])
+    assert field.shape == (1, len(body))
+    want = {0.0: 0.01 + LAYER_GAP, 0.02: 0.01 + LAYER_GAP, 0.04: 0.015 + LAYER_GAP, 0.06: 0.015 + LAYER_GAP,
+            0.08: 0.015 + LAYER_GAP, 0.1: 0.0, 0.2: 0.0, 0.6: 0.0, -0.06: 0.0}
+    for x, v in want.items():
+        assert field[0, at(x)] == pytest.approx(v, abs=1e-12), x
+    np.testing.assert_allclose(allow, [0.01 + LAYER_GAP - 0.012, 0.0], atol=1e-12)
+    # no other item bound: no field; a plan without items: none either
+    rows, _, field = inner_layer_field(plan, np.ones(8), items, particles, samples, np.array([0.012, 0.02]),
+                                       np.array([at(0.0), at(0.2)]), body, normals)
+    assert (rows == -1).all() and not field.any()
+    rows, _, field = inner_layer_field(SimpleNamespace(offsets=plan.offsets), w, items, particles, samples,
+                                       np.array([0.012, 0.02]), np.array([at(0.0), at(0.2)]), body, normals)
+    assert (rows == -1).all() and not field.any()
+
+
+def _layered_drop(compiled=None):
+    """A sheet 8 cm over a sphere's top falls onto it; a bound layer (item 0,
+    shorts) lies 2 cm over the cap, too far under the sheet at frame 0 for
+    :func:`inner_layer_margin` (LAYER_REACH). Returns (sheet points per
+    frame, the cap's directions mask over the sheet's last frame)."""
+    sp, sf = uv_sphere(24, 0.4)
+    cap = sp[sp[:, 1] > 0.4 * np.cos(np.radians(25.0))]
+    layer = cap / np.linalg.norm(cap, axis=1, keepdims=True) * 0.42
+    sheet, faces = grid_sheet(15, 0.6, y=0.48)
+    sheet[:, [0, 2]] -= 0.3
+    n = len(layer)
+    pts = np.concatenate([layer, sheet])
+    plan = SimpleNamespace(mesh=SimpleNamespace(edges=mesh_edges(faces) + n), offsets=np.array([0, n, len(pts)]),
+                           items=[SimpleNamespace(name="shorts"), SimpleNamespace(name="sheet")])
+    w = np.concatenate([np.zeros(n), np.ones(len(sheet))])
+    cs = ClothSolver(plan, sf, sp, pts, weights=w, attach_alpha=1e9, friction=0.5, compiled=compiled)
+    frames = [cs.step(sp, pts, 1.0 / 30.0)[n:] for _ in range(30)]
+    return np.array(frames), cs
+
+
+def test_cloth_keeps_over_a_layer_it_falls_onto():
+    frames, cs = _layered_drop()
+    assert (cs.layer_row >= 0).all() and cs.layer.max() == pytest.approx(0.02 + LAYER_GAP, abs=2e-3)
+    out = frames[-1]
+    r = np.linalg.norm(out, axis=1)
+    assert out[:, 1].min() < 0.3                     # it fell and draped round the sphere
+    over = out[:, 1] / r > np.cos(np.radians(18.0))   # over the cap, away from the layer's edge
+    assert over.sum() >= 20
+    # over the layer (2 cm) and its gap, not at the skin's 5 mm margin
+    assert (r[over] - 0.4).min() > 0.02 + LAYER_GAP - 0.003, (r[over] - 0.4).min()
+
+
+@pytest.mark.skipif(not HAVE_NUMBA, reason="numba not installed")
+def test_layered_cloth_numba_matches_numpy_twin():
+    a, _ = _layered_drop(compiled=True)
+    b, _ = _layered_drop(compiled=False)
+    np.testing.assert_allclose(a, b, rtol=0, atol=1e-9)

@@ -23,7 +23,8 @@ them. :class:`ClothSolver` simulates them instead, as cloth:
 * the body is the collider: every free vertex, and the midpoint of every
   edge longer than ``EDGE_SAMPLE_LENGTH``, stays ``MARGIN`` outside the skin
   of this frame (or its frame-0 clearance where that is less), with
-  friction;
+  friction; and over the bound items under the cloth wherever it swings
+  (:func:`inner_layer_field`: shorts under a skirt), not just the skin;
 * inertia: velocities carry over from frame to frame (gravity, damping
   relative to the bound motion), so a skirt swings after a turn and hair
   settles after a nod.
@@ -241,6 +242,115 @@ def inner_layer_margin(plan, weights: np.ndarray, item_points: np.ndarray, parti
     return np.where(np.isfinite(need), np.clip(need, 0.0, np.maximum(sample_clearance, 0.0)), 0.0)
 
 
+LAYER_SPOT = 0.04   # m: footprints this near are over the same spot of the skin (a coarse skirt's edges are 3-5 cm)
+LAYER_INHERIT = 0.06  # m: a vertex with no cloth over its spot is decided by its item's decided vertices this near
+LAYER_FOOT = 0.03   # m: an inner vertex lifts the body vertices this near its footprint
+LAYER_CAP = 0.03    # m: the highest inner layer kept over (a loose top's hem over the hips)
+
+
+def inner_layer_field(plan, weights: np.ndarray, item_points: np.ndarray, particles: np.ndarray,
+                      samples: np.ndarray, sample_clearance: np.ndarray, sample_vertex: np.ndarray,
+                      body_points: np.ndarray, body_normals: np.ndarray):
+    """The clearance each cloth item keeps over the items under it, as a
+    field over the collider's vertices: wherever the cloth swings.
+
+    :func:`inner_layer_margin` gives each sample the height of the layers
+    under it in the static dress. A skirt's hem that hangs free there and
+    swings onto a thigh meets shorts it never lay over, and they came
+    through it (the long skirt walking: the hot pants' orange in patches
+    through the blue). Here every body vertex carries the height of what
+    lies under the cloth item over it.
+
+    Which vertices are under a cloth item is decided per vertex, not per
+    item (one suit is hot pants under a skirt and a top whose hem hangs over
+    it), as :mod:`dress.layers` compares layers: over the same spot of the
+    skin. Each vertex's footprint is its nearest body vertex; a bound vertex
+    of another item is under the cloth item when the cloth's vertex with the
+    nearest footprint (within ``LAYER_SPOT``) is farther from the skin than
+    it (by 1 mm). A vertex with no cloth over its spot (the inner thighs
+    under a skirt) takes the answer of the nearest vertex of its own item
+    that has one, within ``LAYER_INHERIT``. Rigid items (shoes, a hat) are not layers: a sole stands
+    2-3 cm off the foot.
+
+    The under vertices' clearance (0 to ``LAYER_CAP``) plus ``LAYER_GAP`` is
+    spread to the body vertices within ``LAYER_FOOT`` of their footprint
+    (the largest where several). A sample keeps ``field[row, h] - allow``
+    over its current nearest body vertex ``h`` (the kernel,
+    :func:`kernels.cloth.cloth_frame`); ``allow`` is how far the static dress
+    has it under the field at frame 0 (a waistband interleaved with a top's
+    hem stays as dressed; 0 for a sample inside the body there).
+
+    Parameters
+    ----------
+    plan : the dress plan (its ``offsets``, ``items`` and wholly rigid items).
+    weights : (M,) cloth weights (0: bound).
+    item_points : (M, 3) all items dressed at frame 0.
+    particles : (P,) the cloth's particles (item rows); samples (S, 2) their
+        pairs; sample_clearance (S,) and sample_vertex (S,) each sample's
+        clearance and nearest collider vertex at frame 0.
+    body_points, body_normals : (C, 3) the collider's vertices and unit
+        normals at frame 0.
+
+    Returns
+    -------
+    layer_row : (S,) int64, the field row of each sample's item (-1: none).
+    allow : (S,) metres.
+    field : (R, C) metres (R >= 1; one row of zeros when nothing lies under
+        a cloth item).
+    """
+    n_s, n_c = len(samples), len(body_points)
+    rows = np.full(n_s, -1, dtype=np.int64)
+    allow = np.zeros(n_s)
+    offsets, items = getattr(plan, "offsets", None), getattr(plan, "items", None)
+    if offsets is None or items is None or n_s == 0 or n_c == 0:
+        return rows, allow, np.zeros((1, n_c))
+    pts = np.asarray(item_points, dtype=np.float64)
+    w = np.asarray(weights)
+    item_of = np.repeat(np.arange(len(offsets) - 1), np.diff(offsets))
+    own = item_of[particles[samples[:, 0]]]
+    whole = plan.wholly_rigid() if hasattr(plan, "wholly_rigid") else set()
+    rigid = np.isin(item_of, [i for i, m in enumerate(items) if getattr(m, "name", None) in whole])
+    tree = cKDTree(body_points)
+    _, foot = tree.query(pts)
+    clear = np.einsum("ij,ij->i", pts - body_points[foot], body_normals[foot])
+    field = []
+    for item in np.unique(own):
+        mine = np.flatnonzero(item_of == item)
+        spots = cKDTree(body_points[foot[mine]])
+        under = np.zeros(len(pts), dtype=bool)
+        for other in np.unique(item_of[(item_of != item) & (w <= 0) & ~rigid]):
+            v = np.flatnonzero((item_of == other) & (w <= 0))
+            d, j = spots.query(body_points[foot[v]], distance_upper_bound=LAYER_SPOT)
+            decided = np.isfinite(d)
+            if not decided.any():
+                continue
+            is_under = decided & (clear[mine[np.where(decided, j, 0)]] > clear[v] + 1e-3)
+            if not decided.all():  # no cloth over the spot: as the nearest decided vertex of the item
+                dk, k = cKDTree(pts[v[decided]]).query(pts[v[~decided]], distance_upper_bound=LAYER_INHERIT)
+                near = np.isfinite(dk)
+                is_under[np.flatnonzero(~decided)[near]] = is_under[decided][k[near]]
+            under[v[is_under]] = True
+        if not under.any():
+            continue
+        u = np.flatnonzero(under)
+        # the highest over each footprint, then over every body vertex within LAYER_FOOT of one
+        feet, at = np.unique(foot[u], return_inverse=True)
+        top = np.zeros(len(feet))
+        np.maximum.at(top, at, np.clip(clear[u], 0.0, LAYER_CAP))
+        near = tree.sparse_distance_matrix(cKDTree(body_points[feet]), LAYER_FOOT, output_type="coo_matrix")
+        row = np.zeros(n_c)
+        row[feet] = top + LAYER_GAP
+        np.maximum.at(row, near.row, top[near.col] + LAYER_GAP)
+        sel = own == item
+        rows[sel] = len(field)
+        allow[sel] = np.where(sample_clearance[sel] >= 0.0,
+                              np.maximum(row[sample_vertex[sel]] - sample_clearance[sel], 0.0), 0.0)
+        field.append(row)
+    if not field:
+        return rows, allow, np.zeros((1, n_c))
+    return rows, allow, np.ascontiguousarray(np.stack(field))
+
+
 def default_collider(plan, n: int) -> np.ndarray:
     """(n,) bool: the body vertices loose parts collide with: all but the
     arms when the plan knows the body's regions. A hand hanging beside a
@@ -371,8 +481,14 @@ class ClothSolver:
         # keeps its clearance above that layer, not the skin's MARGIN
         self.margin = np.maximum(self.margin, inner_layer_margin(plan, w, pts0, self.particles, self.samples, q,
                                                                  est, body0, self.n0))
+        # and wherever it swings, over the items the plan layers under it
+        self.layer_row, self.allow, self.layer = inner_layer_field(plan, w, pts0, self.particles, self.samples, est,
+                                                                   near, body0, self.n0)
+        self.top = np.where(self.layer_row >= 0, self.layer.max(axis=1)[np.maximum(self.layer_row, 0)] - self.allow,
+                            0.0)
+        self.top = np.ascontiguousarray(np.maximum(self.margin, self.top))
         # the nearest-vertex searches must reach the largest clearance kept
-        self.reach = max(self.reach, float(self.margin.max(initial=0.0)) + 0.005)
+        self.reach = max(self.reach, float(self.top.max(initial=0.0)) + 0.005)
         self.v = np.zeros((self.n_free, 3))
         self.t0 = x0.copy()
         self.hint = np.full(len(self.samples), -1, dtype=np.int64)
@@ -545,8 +661,9 @@ class ClothSolver:
             self._frame += 1
         cloth_frame(ClothState(self.x, self.v, self.inv_m, self.att_alpha), ClothTargets(self.t0, t1),
                     ClothEdges(self.edges, self.rest, self.colour_ptr), self.tethers,
-                    ClothSamples(self.samples, self.sample_ptr, self.hint, self.margin, self.clear),
-                    ClothBody(self.b0, b1, self.n0, n1, *self.adjacency, move, self.gap),
+                    ClothSamples(self.samples, self.sample_ptr, self.hint, self.margin, self.clear, self.layer_row,
+                                 self.allow, self.top),
+                    ClothBody(self.b0, b1, self.n0, n1, *self.adjacency, self.layer, move, self.gap),
                     ClothParams(self.gravity, self.damping, self.friction, self.stretch_alpha, self.compress_alpha,
                                 float(dt), self.substeps(dt), self.iterations),
                     compiled=self.compiled, scratch=self._scratch)

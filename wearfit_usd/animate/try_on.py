@@ -311,7 +311,7 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
     # shot's own weights, else dressed on the bind pose with the weights of
     # their binding (dress.item_weights.skinned_items, as `wearfit dress
     # --items` writes them); for the skinned rigid items and the skinned copies
-    whole = _wholly_rigid(ref_plan) if opt.mode == "bind" and opt.rigid_items == "skinned" else set()
+    whole = ref_plan.wholly_rigid() if opt.mode == "bind" and opt.rigid_items == "skinned" else set()
     skin_src = items_for_skin
     if opt.mode == "bind" and (whole or items_mode != "points"):
         if bind_dressed is None:
@@ -488,24 +488,9 @@ def _motion_measures(target: Character, dressed, ref_plan) -> MotionMeasures:
                           hanging=cloth_weights(ref_plan) >= 0.5)
 
 
-#: an item with at least this share of its vertices in rigid groups is a
-#: rigid item (shoes, a hat, glasses, stiff shorts: 1.0 on the dev references;
-#: the long skirt's top has a rigid group over 9 % of it: it stays bound)
-RIGID_ITEM_SHARE = 0.9
-
-
-def _wholly_rigid(plan: DressPlan) -> set:
-    """Names of the plan's items that are rigid as a whole (RIGID_ITEM_SHARE)."""
-    if not plan.rigid_items:
-        return set()
-    mask = plan.rigid_mask()
-    return {m.name for m, sl in zip(plan.items, plan.item_slices())
-            if m.name in plan.rigid_items and mask[sl].mean() >= RIGID_ITEM_SHARE}
-
-
 class _RigidItems:
     """The rigid items of a plan (shoes, hats, glasses: ``names``, see
-    :func:`_wholly_rigid`) in a shot,
+    :meth:`dress.plan.DressPlan.wholly_rigid`) in a shot,
     by linear blend skinning with the weights of their binding
     (:func:`dress.item_weights.skinned_items`: the skin under them; a hat or
     glasses on the head joint alone) from the static dress on the bind pose,

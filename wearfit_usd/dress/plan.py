@@ -67,6 +67,12 @@ def group_mask(groups: list, m: int) -> np.ndarray:
     return mask
 
 
+#: an item with at least this share of its vertices in rigid groups is a
+#: rigid item (shoes, a hat, glasses, stiff shorts: 1.0 on the dev references;
+#: the long skirt's top has a rigid group over 9 % of it: it stays bound)
+RIGID_ITEM_SHARE = 0.9
+
+
 @dataclass(frozen=True)
 class ItemRegions:
     """Body regions (:mod:`regions`) of a plan: per item vertex, body
@@ -163,6 +169,16 @@ class DressPlan:
     def rigid_mask(self) -> np.ndarray:
         """(M,) bool: item vertices of the rigid groups."""
         return group_mask(self.rigid_groups, len(self.ref_points))
+
+    def wholly_rigid(self) -> set:
+        """Names of the items that are rigid as a whole: at least
+        :data:`RIGID_ITEM_SHARE` of their vertices in rigid groups (shoes, a
+        hat, glasses; not a top with a rigid patch)."""
+        if not self.rigid_items:
+            return set()
+        mask = self.rigid_mask()
+        return {m.name for m, sl in zip(self.items, self.item_slices())
+                if m.name in self.rigid_items and mask[sl].mean() >= RIGID_ITEM_SHARE}
 
     def item_slices(self) -> list[slice]:
         """The rows of each item in the stacked arrays.

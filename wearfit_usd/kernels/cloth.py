@@ -59,12 +59,16 @@ vertex normals, renormalised, and the targets). Each substep:
      the last one (``hint``, re-seeded from a grid search by the caller), in
      the frame's first substep; ``n_j`` is its unit normal,
      ``d = (q - b_j) . n_j`` the signed distance estimate, and
-     ``C = d - margin >= 0`` is projected hard (``alpha = 0``): with
+     ``C = d - m >= 0`` is projected hard (``alpha = 0``), ``m`` the
+     sample's ``margin``, or where more the clearance of the items under its
+     cloth item over vertex ``j`` (``ClothBody.layer[layer_row, j] - allow``,
+     :func:`animate.cloth.inner_layer_field`): with
      ``grad_a C = g_a n`` (``g = 1`` for a particle, ``1/2`` for each end of
-     an edge) each particle moves by ``w_a g_a / sum(w g^2) (margin - d) n``,
-     which moves the sample by exactly ``margin - d``. A sample whose lower
+     an edge) each particle moves by ``w_a g_a / sum(w g^2) (m - d) n``,
+     which moves the sample by exactly ``m - d``. A sample whose lower
      bound on its distance to the body vertices (``clear``, less the body's
-     largest motion and its own since) exceeds ``margin + gap`` is skipped.
+     largest motion and its own since) exceeds ``top + gap`` (``top``: its
+     largest ``m`` anywhere) is skipped.
      A fast leg could carry a sample past its middle, where the nearest
      vertex is on the far side: when the walk lands on a vertex whose normal
      opposes the previous one and the sample is within ``margin`` of the
@@ -132,6 +136,9 @@ class ClothSamples(NamedTuple):
     hint: np.ndarray        # (S,) int64 nearest body vertex (-1: none within reach; updated)
     margin: np.ndarray      # (S,) clearance kept from the body
     clear: np.ndarray       # (S,) lower bound of the distance to the body vertices (updated)
+    layer_row: np.ndarray   # (S,) int64 row of ClothBody.layer the sample keeps over (-1: none)
+    allow: np.ndarray       # (S,) how far the sample may stay under that row's clearance
+    top: np.ndarray         # (S,) the largest clearance the sample keeps anywhere
 
 
 class ClothBody(NamedTuple):
@@ -143,6 +150,7 @@ class ClothBody(NamedTuple):
     adj_ptr: np.ndarray    # (N + 1,) int64 CSR of the vertex graph
     adj_idx: np.ndarray    # (nnz,) int64
     adj_table: np.ndarray  # (N, D) int64 the same, -1 padded (numpy twin)
+    layer: np.ndarray      # (R, N) clearance over each vertex of the items under a cloth item (row)
     move: float            # largest vertex displacement over the frame
     gap: float             # how much nearer than its nearest vertex the skin can be
 
@@ -197,8 +205,8 @@ def _dist2_to(b0, b1, j, s, px, py, pz):
     return dx * dx + dy * dy + dz * dz
 
 
-def _collide(p, x, hint, samples, margin, clear, q0, move, gap, friction, inv_m, b0, b1, n0, n1, adj_ptr,
-             adj_idx, s_prev, s, walk):
+def _collide(p, x, hint, samples, margin, clear, layer_row, allow, top, layer, q0, move, gap, friction, inv_m,
+             b0, b1, n0, n1, adj_ptr, adj_idx, s_prev, s, walk):
     """Body collision of every collision sample (see the module docstring),
     one loop (a call per sample, passing these arrays, cost more than the
     test of a sample far from the body)."""
@@ -216,7 +224,7 @@ def _collide(p, x, hint, samples, margin, clear, q0, move, gap, friction, inv_m,
         ey = py - q0[k, 1]
         ez = pz - q0[k, 2]
         dq = math.sqrt(ex * ex + ey * ey + ez * ez)
-        if clear[k] - move * s - dq > margin[k] + gap:
+        if clear[k] - move * s - dq > top[k] + gap:
             continue
         h = h0
         d2 = _dist2_to(b0, b1, h, s, px, py, pz)
@@ -258,7 +266,11 @@ def _collide(p, x, hint, samples, margin, clear, q0, move, gap, friction, inv_m,
                     bz = cz
                     d = d_old
         hint[k] = h
-        depth = margin[k] - d
+        m = margin[k]
+        r = layer_row[k]
+        if r >= 0:
+            m = max(m, layer[r, h] - allow[k])
+        depth = m - d
         if depth <= 0.0:
             continue
         # the tangent plane of a vertex far to the side says nothing (a stale
@@ -337,8 +349,8 @@ def _frame_loop(state, tg, ed, te, sm, body, prm, scratch):
     x, v, inv_m, att_alpha = state
     t0, t1 = tg
     edges, rest, _ = ed
-    samples, _, hint, margin, clear = sm
-    b0, b1, n0, n1, adj_ptr, adj_idx, _, move, gap = body
+    samples, _, hint, margin, clear, layer_row, allow, top = sm
+    b0, b1, n0, n1, adj_ptr, adj_idx, _, layer, move, gap = body
     gravity, damping, friction, alpha_stretch, alpha_compress, dt, n_sub, n_iter = prm
     lam_e, lam_a, p, q0 = scratch
     n_free = v.shape[0]
@@ -424,8 +436,8 @@ def _frame_loop(state, tg, ed, te, sm, body, prm, scratch):
                 p[ib, 0] -= wb * f * dx
                 p[ib, 1] -= wb * f * dy
                 p[ib, 2] -= wb * f * dz
-        _collide(p, x, hint, samples, margin, clear, q0, move, gap, friction, inv_m, b0, b1, n0, n1,
-                 adj_ptr, adj_idx, s_prev, s, k_sub == 0)
+        _collide(p, x, hint, samples, margin, clear, layer_row, allow, top, layer, q0, move, gap, friction, inv_m,
+                 b0, b1, n0, n1, adj_ptr, adj_idx, s_prev, s, k_sub == 0)
         for i in range(n_free):
             for c in range(3):
                 v[i, c] = (p[i, c] - x[i, c]) * inv_hs
@@ -468,15 +480,15 @@ def _dist2_rows(b0, b1, j, s, q):
     return d[..., 0] * d[..., 0] + d[..., 1] * d[..., 1] + d[..., 2] * d[..., 2]
 
 
-def _collide_numpy(p, x, hint, samples, margin, clear, q0, move, gap, friction, inv_m, b0, b1, n0, n1, adj_table,
-                   s_prev, s, rows, walk):
+def _collide_numpy(p, x, hint, samples, margin, clear, layer_row, allow, top, layer, q0, move, gap, friction, inv_m,
+                   b0, b1, n0, n1, adj_table, s_prev, s, rows, walk):
     """:func:`_collide` for the samples ``rows`` (no two share a particle) at once."""
     rows = rows[hint[rows] >= 0]
     ia, ib = samples[rows, 0], samples[rows, 1]
     q = 0.5 * (p[ia] + p[ib])
     e = q - q0[rows]
     dq = np.sqrt(e[:, 0] * e[:, 0] + e[:, 1] * e[:, 1] + e[:, 2] * e[:, 2])
-    keep = ~(clear[rows] - move * s - dq > margin[rows] + gap)
+    keep = ~(clear[rows] - move * s - dq > top[rows] + gap)
     rows, ia, ib, q, dq = rows[keep], ia[keep], ib[keep], q[keep], dq[keep]
     if len(rows) == 0:
         return
@@ -516,7 +528,9 @@ def _collide_numpy(p, x, hint, samples, margin, clear, q0, move, gap, friction, 
         b[back] = c[back]
         d[back] = d_old[back]
     hint[rows] = h
-    depth = margin[rows] - d
+    r = layer_row[rows]
+    lift = np.where(r >= 0, layer[np.maximum(r, 0), h] - allow[rows], -np.inf)
+    depth = np.maximum(margin[rows], lift) - d
     wa = inv_m[ia]
     same = ia == ib
     wsum = np.where(same, wa, 0.25 * (wa + inv_m[ib]))
@@ -562,8 +576,8 @@ def _frame_numpy(state, tg, ed, te, sm, body, prm):
     x, v, inv_m, att_alpha = state
     t0, t1 = tg
     edges, rest, colour_ptr = ed
-    samples, sample_ptr, hint, margin, clear = sm
-    b0, b1, n0, n1, _, _, adj_table, move, gap = body
+    samples, sample_ptr, hint, margin, clear, layer_row, allow, top = sm
+    b0, b1, n0, n1, _, _, adj_table, layer, move, gap = body
     gravity, damping, friction, alpha_stretch, alpha_compress, dt, n_sub, n_iter = prm
     n_free = len(v)
     hs = dt / n_sub
@@ -603,8 +617,8 @@ def _frame_numpy(state, tg, ed, te, sm, body, prm):
                 p[ib] -= (wb * f)[:, None] * dvec
         for c in range(len(sample_ptr) - 1):
             rows = np.arange(sample_ptr[c], sample_ptr[c + 1])
-            _collide_numpy(p, x, hint, samples, margin, clear, q0, move, gap, friction, inv_m, b0, b1, n0, n1,
-                           adj_table, s_prev, s, rows, k == 0)
+            _collide_numpy(p, x, hint, samples, margin, clear, layer_row, allow, top, layer, q0, move, gap, friction,
+                           inv_m, b0, b1, n0, n1, adj_table, s_prev, s, rows, k == 0)
         v[:] = (p[:n_free] - x[:n_free]) / hs
         x[:] = p
     e = 0.5 * (x[samples[:, 0]] + x[samples[:, 1]]) - q0
@@ -629,8 +643,10 @@ def cloth_frame(state: ClothState, targets: ClothTargets, edges: ClothEdges, tet
         each sample's nearest body vertex (-1: no body within reach this
         frame: not tested), ``clear`` a lower bound of its distance to the
         body vertices at the start of the frame (the search is skipped
-        while the bound, less the motion since, stays above ``margin +
-        gap``; aged by the frame's motion on return).
+        while the bound, less the motion since, stays above ``top +
+        gap``; aged by the frame's motion on return); ``margin``,
+        ``layer_row`` and ``allow`` give the clearance kept (module
+        docstring).
     body : :class:`ClothBody`, the collider at the previous frame and this one.
     params : :class:`ClothParams`, frame length, substeps and material.
     compiled : use the numba loop (default: when numba is installed).

@@ -75,7 +75,8 @@ def warm_up() -> bool:
                            np.array([0, 1, 2], dtype=np.int64)),
                 ClothTethers(np.array([2, 2], dtype=np.int64), np.array([1.0, 0.5])),
                 ClothSamples(np.array([[0, 0], [1, 1]], dtype=np.int64), np.array([0, 1, 2], dtype=np.int64),
-                             np.full(2, -1, dtype=np.int64), np.zeros(2), np.zeros(2)),
-                ClothBody(pts, pts, unit, unit, ptr, idx, idx.reshape(4, 3), 0.0, 0.0),
+                             np.full(2, -1, dtype=np.int64), np.zeros(2), np.zeros(2),
+                             np.array([0, -1], dtype=np.int64), np.zeros(2), np.zeros(2)),
+                ClothBody(pts, pts, unit, unit, ptr, idx, idx.reshape(4, 3), np.zeros((1, 4)), 0.0, 0.0),
                 ClothParams(np.array([0.0, -9.81, 0.0]), 1.0, 0.3, 0.0, 1e-6, 1 / 30, 2, 2))
     return True
