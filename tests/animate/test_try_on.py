@@ -258,18 +258,33 @@ def test_shoes_keep_to_the_feet_in_the_walk(tmp_path, ref_female):
     the old path, and must stay as bad as it was (the option is real)."""
     target = read_character(USD_DIR / "body_female_thin.usdc")
     clip = read_bvh(BVH_DIR / "cmu_07_01_walk.bvh")
-    figs = {}
+    figs, brows = {}, {}
     for mode in ("skinned", "bound"):
         rep = animate(ref_female, target, clip, tmp_path / f"{mode}.usdc",
                       AnimateOptions(start=1, end=121, fps=30, measure_every=1, rigid_items=mode))
         figs[mode] = {k: v["value"] for k, v in rep.motion_worst["shoes02"].items()}
-        assert rep.skinned_rigid_items == (["shoes02"] if mode == "skinned" else [])
+        brows[mode] = {k: v["value"] for k, v in rep.motion_worst["eyebrow001"].items()}
+        assert sorted(rep.skinned_rigid_items) == (["eyebrow001", "shoes02"] if mode == "skinned" else [])
+    # the eyebrows, a decal on the skin, skinned with the skin under them move
+    # as the skin does; bound, the penetration guard lifted them to its 1 mm
+    # margin in every frame (coverage loss 3.2 % on every clip)
+    assert brows["skinned"]["coverage_loss_pct"] == 0.0 and brows["skinned"]["separation_p95_mm"] < 0.05, brows
+    assert brows["bound"]["separation_p95_mm"] > 0.5, brows
     s, b = figs["skinned"], figs["bound"]
     assert s["coverage_loss_pct"] <= 1.0 and s["separation_p95_mm"] <= 3.5 and s["stretch_max"] <= 2.5, s
     assert s["new_pen_pct"] <= 0.5 and s["stretch_p99"] <= 1.15, s
     # articulated: sole, toe cap and collar each rigid (issue 17's 2 mm)
     assert s["rigid_mm"] <= 2.0, s
     assert b["coverage_loss_pct"] > 2.0 and b["separation_p95_mm"] > 5.0 and b["rigid_mm"] > 10.0, b
+
+
+def test_skin_decals_are_the_eyebrows(ref_male, ref_female, ref_female_longskirt):
+    from wearfit_usd.dress.plan import plan as plan_dress
+    # items lying on the skin (95 % within 3 mm): the eyebrows (p95 1.7-1.9
+    # mm); the tightest suit's p95 is 12 mm
+    assert plan_dress(ref_male).skin_decals() == {"eyebrow001"}
+    assert plan_dress(ref_female).skin_decals() == {"eyebrow001"}
+    assert plan_dress(ref_female_longskirt).skin_decals() == set()
 
 
 def test_dress_pose_auto_follows_the_body_topology(ref_male, heavy_male, data_dir):

@@ -96,7 +96,7 @@ class AnimateReport:
     motion_worst: dict = field(default_factory=dict)    # {item: {measure: {"value", "frame"}}}
     cloth_vertices: int = 0  # item vertices simulated as cloth
     skinned_items: list = field(default_factory=list)  # names of the items written bound to the skeleton
-    skinned_rigid_items: list = field(default_factory=list)  # rigid items evaluated by skinning (bind mode)
+    skinned_rigid_items: list = field(default_factory=list)  # rigid items and skin decals skinned (bind mode)
     dress_pose: str = ""  # the pose frame 0 was dressed in: "first" or "bind" (AnimateOptions.dress_pose resolved)
 
     def as_dict(self) -> dict:
@@ -311,7 +311,11 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
     # shot's own weights, else dressed on the bind pose with the weights of
     # their binding (dress.item_weights.skinned_items, as `wearfit dress
     # --items` writes them); for the skinned rigid items and the skinned copies
-    whole = ref_plan.wholly_rigid() if opt.mode == "bind" and opt.rigid_items == "skinned" else set()
+    whole = set()
+    if opt.mode == "bind" and opt.rigid_items == "skinned":
+        # rigid items and decals on the skin (eyebrows), skinned: the guard
+        # lifted the eyebrows to its 1 mm margin in every frame (from 0-1 mm)
+        whole = ref_plan.wholly_rigid() | ref_plan.skin_decals()
     skin_src = items_for_skin
     if opt.mode == "bind" and (whole or items_mode != "points"):
         if bind_dressed is None:
@@ -490,7 +494,8 @@ def _motion_measures(target: Character, dressed, ref_plan) -> MotionMeasures:
 
 class _RigidItems:
     """The rigid items of a plan (shoes, hats, glasses: ``names``, see
-    :meth:`dress.plan.DressPlan.wholly_rigid`) in a shot,
+    :meth:`dress.plan.DressPlan.wholly_rigid`; and the decals on the skin,
+    eyebrows, :meth:`dress.plan.DressPlan.skin_decals`) in a shot,
     by linear blend skinning with the weights of their binding
     (:func:`dress.item_weights.skinned_items`: the skin under them; a hat or
     glasses on the head joint alone) from the static dress on the bind pose,

@@ -71,6 +71,8 @@ def group_mask(groups: list, m: int) -> np.ndarray:
 #: rigid item (shoes, a hat, glasses, stiff shorts: 1.0 on the dev references;
 #: the long skirt's top has a rigid group over 9 % of it: it stays bound)
 RIGID_ITEM_SHARE = 0.9
+#: metres: an item whose vertices lie this near the reference body (95 %) is a decal on the skin
+DECAL_CLEARANCE = 0.003
 
 
 @dataclass(frozen=True)
@@ -169,6 +171,16 @@ class DressPlan:
     def rigid_mask(self) -> np.ndarray:
         """(M,) bool: item vertices of the rigid groups."""
         return group_mask(self.rigid_groups, len(self.ref_points))
+
+    def skin_decals(self) -> set:
+        """Names of the items that lie on the skin, like a decal: 95 % of
+        their vertices within :data:`DECAL_CLEARANCE` of the reference body
+        (eyebrows, eyelashes, a tattoo; the tight suits' p95 is 11-35 mm).
+        They follow the skin itself: an animation skins them with the weights
+        of their binding (the skin under them), which no penetration pass
+        lifts off it."""
+        return {m.name for m, sl in zip(self.items, self.item_slices())
+                if sl.stop > sl.start and np.percentile(np.abs(self.ref_clearance[sl]), 95) <= DECAL_CLEARANCE}
 
     def wholly_rigid(self) -> set:
         """Names of the items that are rigid as a whole: at least
