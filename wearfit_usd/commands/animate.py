@@ -65,7 +65,8 @@ def register(sub, common):
                         "from their attachment, the body as collider (default: on when the items have loose parts; "
                         "bind mode only)")
     p.add_argument("--rigid-items", choices=("skinned", "bound"), default="skinned",
-                   help="bind mode: rigid items (shoes, hats, glasses) follow the skeleton by skinning with their "
+                   help="bind mode: rigid items (shoes, hats, glasses) and decals on the skin (eyebrows) follow "
+                        "the skeleton by skinning with their "
                         "binding's weights (default; a shoe flexes with the foot and keeps to it), or are bound "
                         "like the rest, fitted rigidly per part and pushed out of the body (the older way: the "
                         "toes came through the shoes)")
