@@ -269,8 +269,8 @@ def inner_layer_field(plan, weights: np.ndarray, item_points: np.ndarray, partic
     nearest footprint (within ``LAYER_SPOT``) is farther from the skin than
     it (by 1 mm). A vertex with no cloth over its spot (the inner thighs
     under a skirt) takes the answer of the nearest vertex of its own item
-    that has one, within ``LAYER_INHERIT``. Rigid items (shoes, a hat) are not layers: a sole stands
-    2-3 cm off the foot.
+    that has one, within ``LAYER_INHERIT``. Rigid items (shoes, a hat) are
+    not layers: a sole stands 2-3 cm off the foot.
 
     The under vertices' clearance (0 to ``LAYER_CAP``) plus ``LAYER_GAP`` is
     spread to the body vertices within ``LAYER_FOOT`` of their footprint
