@@ -193,13 +193,23 @@ def tethers(edges: np.ndarray, rest: np.ndarray, n_free: int, n: int, slack: flo
     return ClothTethers(anchor, np.ascontiguousarray(length))
 
 
+def tangent_clearance(points: np.ndarray, body_points: np.ndarray, body_normals: np.ndarray,
+                      tree: cKDTree | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Each point's nearest body vertex (P,) and its clearance (P,) along
+    that vertex's unit normal: the estimate the collision uses (the nearest
+    vertex's tangent plane). ``tree``: a KD-tree over ``body_points`` if one
+    is already built."""
+    _, near = (cKDTree(body_points) if tree is None else tree).query(points)
+    return near, np.einsum("ij,ij->i", points - body_points[near], body_normals[near])
+
+
 LAYER_REACH = 0.03  # m: bound vertices of other items this near a cloth sample may lie under it
 LAYER_GAP = 0.003   # m kept between the cloth and such a layer
 
 
 def inner_layer_margin(plan, weights: np.ndarray, item_points: np.ndarray, particles: np.ndarray,
                        samples: np.ndarray, sample_points: np.ndarray, sample_clearance: np.ndarray,
-                       body_points: np.ndarray, body_normals: np.ndarray) -> np.ndarray:
+                       body_points: np.ndarray, body_normals: np.ndarray, tree: cKDTree | None = None) -> np.ndarray:
     """(S,) the clearance each cloth sample keeps over the items under it.
 
     The cloth collides with the body only; over a bound layer of another item
@@ -220,7 +230,7 @@ def inner_layer_margin(plan, weights: np.ndarray, item_points: np.ndarray, parti
         pairs (a particle twice: a vertex sample); sample_points (S, 3) and
         sample_clearance (S,) at frame 0.
     body_points, body_normals : (C, 3) the collider's vertices and unit
-        normals at frame 0.
+        normals at frame 0; tree: a KD-tree over ``body_points``, optional.
     """
     out = np.zeros(len(samples))
     offsets = getattr(plan, "offsets", None)
@@ -229,8 +239,7 @@ def inner_layer_margin(plan, weights: np.ndarray, item_points: np.ndarray, parti
         return out
     item_of = np.repeat(np.arange(len(offsets) - 1), np.diff(offsets))
     bp = np.asarray(item_points, dtype=np.float64)[bound]
-    _, nb = cKDTree(body_points).query(bp)
-    bclear = np.einsum("ij,ij->i", bp - body_points[nb], body_normals[nb])
+    _, bclear = tangent_clearance(bp, body_points, body_normals, tree)
     k = int(min(16, len(bound)))
     d, idx = cKDTree(bp).query(sample_points, k=k, distance_upper_bound=LAYER_REACH)
     d, idx = np.asarray(d).reshape(len(samples), k), np.asarray(idx).reshape(len(samples), k)
@@ -250,7 +259,7 @@ LAYER_CAP = 0.03    # m: the highest inner layer kept over (a loose top's hem ov
 
 def inner_layer_field(plan, weights: np.ndarray, item_points: np.ndarray, particles: np.ndarray,
                       samples: np.ndarray, sample_clearance: np.ndarray, sample_vertex: np.ndarray,
-                      body_points: np.ndarray, body_normals: np.ndarray):
+                      body_points: np.ndarray, body_normals: np.ndarray, tree: cKDTree | None = None):
     """The clearance each cloth item keeps over the items under it, as a
     field over the collider's vertices: wherever the cloth swings.
 
@@ -289,7 +298,7 @@ def inner_layer_field(plan, weights: np.ndarray, item_points: np.ndarray, partic
         pairs; sample_clearance (S,) and sample_vertex (S,) each sample's
         clearance and nearest collider vertex at frame 0.
     body_points, body_normals : (C, 3) the collider's vertices and unit
-        normals at frame 0.
+        normals at frame 0; tree: a KD-tree over ``body_points``, optional.
 
     Returns
     -------
@@ -310,9 +319,8 @@ def inner_layer_field(plan, weights: np.ndarray, item_points: np.ndarray, partic
     own = item_of[particles[samples[:, 0]]]
     whole = plan.wholly_rigid() if hasattr(plan, "wholly_rigid") else set()
     rigid = np.isin(item_of, [i for i, m in enumerate(items) if getattr(m, "name", None) in whole])
-    tree = cKDTree(body_points)
-    _, foot = tree.query(pts)
-    clear = np.einsum("ij,ij->i", pts - body_points[foot], body_normals[foot])
+    tree = cKDTree(body_points) if tree is None else tree
+    foot, clear = tangent_clearance(pts, body_points, body_normals, tree)
     field = []
     for item in np.unique(own):
         mine = np.flatnonzero(item_of == item)
@@ -474,16 +482,16 @@ class ClothSolver:
         # (same estimate as the collision: the nearest vertex's tangent plane)
         self.x = np.ascontiguousarray(x0)
         q = self._sample_points()
-        _, near = cKDTree(body0).query(q)
-        est = np.einsum("ij,ij->i", q - body0[near], self.n0[near])
+        tree = cKDTree(body0)
+        near, est = tangent_clearance(q, body0, self.n0, tree)
         self.margin = np.clip(est, 0.0, float(margin))
         # over another item (a top's hem, shorts under a skirt) the cloth
         # keeps its clearance above that layer, not the skin's MARGIN
         self.margin = np.maximum(self.margin, inner_layer_margin(plan, w, pts0, self.particles, self.samples, q,
-                                                                 est, body0, self.n0))
+                                                                 est, body0, self.n0, tree))
         # and wherever it swings, over the items the plan layers under it
         self.layer_row, self.allow, self.layer = inner_layer_field(plan, w, pts0, self.particles, self.samples, est,
-                                                                   near, body0, self.n0)
+                                                                   near, body0, self.n0, tree)
         self.top = np.where(self.layer_row >= 0, self.layer.max(axis=1)[np.maximum(self.layer_row, 0)] - self.allow,
                             0.0)
         self.top = np.ascontiguousarray(np.maximum(self.margin, self.top))
