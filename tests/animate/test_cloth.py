@@ -10,6 +10,7 @@ from tests.conftest import BVH_DIR, USD_DIR
 from wearfit_usd.animate.cloth import (
     LAYER_GAP,
     ClothSolver,
+    PushCarry,
     colour_edges,
     default_collider,
     inner_layer_field,
@@ -18,6 +19,7 @@ from wearfit_usd.animate.cloth import (
 )
 from wearfit_usd.dress import regions as R
 from wearfit_usd.geometry.closest import SurfaceQuery
+from wearfit_usd.geometry.mesh import adjacency
 from wearfit_usd.geometry.mesh import edges as mesh_edges
 from wearfit_usd.kernels import HAVE_NUMBA
 
@@ -420,3 +422,40 @@ def test_layered_cloth_numba_matches_numpy_twin():
     a, _ = _layered_drop(compiled=True)
     b, _ = _layered_drop(compiled=False)
     np.testing.assert_allclose(a, b, rtol=0, atol=1e-9)
+
+
+def test_push_carry_known_answers():
+    """On a grid sheet whose first row is guarded, ring r is row r: a
+    uniform push s reaches row r as (1 - w) * decay^r * s, rows past
+    ``rings`` and guarded rows not at all, a free vertex (w = 1) not at all."""
+    n = 9
+    pts, faces = grid_sheet(n)
+    nb = adjacency(faces, len(pts))
+    row = np.arange(len(pts)) // n
+    w = np.where(row == 0, 0.0, 0.2)
+    w[5 * n + 3] = 0.0                # a bound vertex past the reach: neither guarded nor carried
+    w[2 * n + 4] = 1.0                # hanging free
+    guarded = np.flatnonzero(row == 0)
+    carry = PushCarry(nb, guarded, w, rings=4, decay=0.7)
+    assert set(row[carry.rows]) == {1, 2, 3, 4}
+    s = np.array([0.0, 0.01, 0.002])
+    out = carry(np.tile(s, (len(guarded), 1)))
+    got = dict(zip(carry.rows.tolist(), out))
+    for v in carry.rows:
+        r = row[v]
+        want = (1.0 - w[v]) * 0.7 ** r * s
+        if v == 2 * n + 4:
+            want = np.zeros(3)
+        np.testing.assert_allclose(got[v], want, atol=1e-12)
+    # one guarded vertex pushed: only its ring-1 neighbours, by their share of the nearer ring
+    one = np.zeros((len(guarded), 3))
+    one[4] = s
+    out = dict(zip(carry.rows.tolist(), carry(one)))
+    ring1 = [v for v in carry.rows if row[v] == 1]
+    moved = [v for v in ring1 if np.any(out[v] != 0)]
+    assert moved and all(nb[v, 4] for v in moved)
+    for v in moved:
+        k = int(sum(nb[v, g] for g in guarded))
+        np.testing.assert_allclose(out[v], 0.8 * 0.7 * s / k, atol=1e-12)
+    with pytest.raises(ValueError, match="shift"):
+        carry(np.zeros((3, 3)))

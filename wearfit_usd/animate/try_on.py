@@ -15,7 +15,9 @@ Pipeline (:func:`animate`):
    (:class:`penetration_guard.PenetrationGuard`); with ``cloth`` the loose
    parts (skirts, dresses, coat tails, long hair) are simulated as cloth
    attached to their bound positions, the body as collider
-   (:class:`cloth.ClothSolver`), and the penetration pass leaves them alone;
+   (:class:`cloth.ClothSolver`), and the penetration pass leaves them alone:
+   it runs first, on the bound vertices, and the cloth's targets beside its
+   pushes move with them (:class:`cloth.PushCarry`);
 5. stream everything to one USD shot (:class:`usd_shot.ShotWriter`).
 
 ``mode="lbs"`` is the classic baseline instead: skin weights copied from the
@@ -45,7 +47,7 @@ from ..motion.floor import place_on_floor
 from ..motion.retarget import BLOCK, retarget, retarget_stream
 from ..motion.skinning import Skinner, skin_points, skinning_matrices
 from ..progress import info, progress
-from .cloth import ClothSolver
+from .cloth import ClothSolver, PushCarry
 from .frame_eval import FrameEvaluator
 from .loose import cloth_weights
 from .measures import MEASURES, MotionMeasures, worst_frames
@@ -356,6 +358,8 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
         push_guard = PenetrationGuard(body.faces, base_body, all_base[pushed_rows], margin=opt.penetration_margin,
                                       item_neighbours=nb[pushed_rows][:, pushed_rows],
                                       max_clearance=GUARD_MAX_CLEARANCE)
+        if cloth is not None:
+            carry = PushCarry(nb, pushed_rows, cloth.weights)
     measures = None
     if opt.measure_every and opt.motion_measures:
         t0 = time.perf_counter()
@@ -396,14 +400,28 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
             body_f = body0 if f == 0 else body_skinner(skin_mats(f))
             tb = time.perf_counter()
             pts = evaluator(f, body_f)
-            if cloth is not None:
-                pts = cloth_pts0 if f == 0 else cloth.step(body_f, pts, 1.0 / rt.fps)
+            guarded = False
+            if cloth is not None and f > 0:
+                # the bound vertices pushed out first, the cloth's targets
+                # beside them carried along: the cloth hangs from where the
+                # guard puts them (pushed after it, a bound vertex stood out
+                # of its cloth neighbours)
+                tc = time.perf_counter()
+                moved = push_guard.apply(body_f, pts[pushed_rows])[0]
+                if len(carry):
+                    pts[carry.rows] += carry(moved - pts[pushed_rows])
+                pts[pushed_rows] = moved
+                t_pen += time.perf_counter() - tc
+                guarded = True
+                pts = cloth.step(body_f, pts, 1.0 / rt.fps)
+            elif cloth is not None:
+                pts = cloth_pts0
             if rigid is not None:
                 pts[rigid.rows] = rigid.skinner(skin_mats(f))
             tc = time.perf_counter()
-            if opt.mode == "bind" and pushed_rows is not None:
+            if opt.mode == "bind" and pushed_rows is not None and not guarded:
                 pts[pushed_rows] = push_guard.apply(body_f, pts[pushed_rows])[0]
-            elif opt.mode == "bind":
+            elif opt.mode == "bind" and not guarded:
                 pts, _ = guard.apply(body_f, pts)
             check_finite_points(pts, f, rt, motion.path)
             td = time.perf_counter()
