@@ -334,3 +334,27 @@ def test_game_body_keeps_the_ponytail_out_of_the_nape(tmp_path, ref_female, bvh_
     w = rep.motion_worst["ponytail01"]
     assert w["new_pen_pct"]["value"] < 5.0, w
     assert w["stretch_p99"]["value"] < 7.0, w
+
+
+def test_sub_millimetre_edges_hold_together(tmp_path, ref_female_longskirt, bvh_dir):
+    """bob01 has edges 0.2 mm long whose ends the binding moved apart: in
+    the Daz walk's frame 4 one opened to 5.9 mm (29x the skin's stretch).
+    The short-edge weld keeps every such group within its rest size."""
+    from wearfit_usd.animate.short_edges import ShortEdgeWeld
+    clip = read_bvh(bvh_dir / "cmudaz_02_02_walk.bvh")
+    body = read_character(USD_DIR / "body_female_heavy.usdc")
+    out = tmp_path / "bob.usdc"
+    rep = animate(ref_female_longskirt, body, clip, out, AnimateOptions(start=1, end=6, fps=30, measure_every=1))
+    assert rep.motion_worst["bob01"]["stretch_max"]["value"] < 5.0
+    bob = next(m for m in ref_female_longskirt.items if m.name == "bob01")
+    from wearfit_usd.geometry.mesh import edges as mesh_edges
+    e = mesh_edges(bob.faces)
+    weld = ShortEdgeWeld(bob.points, e)
+    assert weld.n_groups > 0
+    from pxr import Usd
+    stage = Usd.Stage.Open(str(out))
+    short = e[np.linalg.norm(bob.points[e[:, 0]] - bob.points[e[:, 1]], axis=1) < 1e-3]
+    for f in range(5):
+        p = _item_points(stage, "bob01", f)
+        ln = np.linalg.norm(p[short[:, 0]] - p[short[:, 1]], axis=1)
+        assert ln.max() < 0.002, (f, ln.max())

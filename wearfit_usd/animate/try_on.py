@@ -52,6 +52,7 @@ from .frame_eval import FrameEvaluator
 from .loose import cloth_weights
 from .measures import MEASURES, MotionMeasures, worst_frames
 from .penetration_guard import PenetrationGuard
+from .short_edges import ShortEdgeWeld
 from .skin_transfer import transfer_weights
 
 
@@ -360,6 +361,11 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
                                       max_clearance=GUARD_MAX_CLEARANCE)
         if cloth is not None:
             carry = PushCarry(nb, pushed_rows, cloth.weights)
+    # vertices joined by sub-millimetre edges in the items as authored move as one (short_edges)
+    weld = None
+    if opt.mode == "bind":
+        authored = ref_plan.ref_points if len(ref_plan.ref_points) == len(all_base) else all_base
+        weld = ShortEdgeWeld(authored, frame_plan.mesh.edges)
     measures = None
     if opt.measure_every and opt.motion_measures:
         t0 = time.perf_counter()
@@ -423,6 +429,8 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
                 pts[pushed_rows] = push_guard.apply(body_f, pts[pushed_rows])[0]
             elif opt.mode == "bind" and not guarded:
                 pts, _ = guard.apply(body_f, pts)
+            if weld is not None:
+                weld(pts)
             check_finite_points(pts, f, rt, motion.path)
             td = time.perf_counter()
             t_pen += td - tc
