@@ -60,7 +60,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
-from ..dress.body_stretch import stretch_range, vertex_stretch
+from ..dress.body_stretch import local_triangles, stretch_range, vertex_stretch
 from ..errors import WearfitError
 from ..geometry.closest import SurfaceQuery, VertexNormals
 from ..geometry.mesh import edges, similarity_fit
@@ -152,10 +152,7 @@ class MotionMeasures:
         self.clearance0 = foot["distance"]
         self.foot_tri, self.foot_bary = foot["triangle"], foot["bary"]
         # the body triangles each item vertex's local stretch is taken over
-        kk = min(k, len(self.faces))
-        _, near = cKDTree(self.body0[self.faces].mean(axis=1)).query(self.items0, k=kk)
-        near = np.asarray(near, dtype=np.int64).reshape(len(self.items0), -1)
-        self.triangles = np.concatenate([self.foot_tri[:, None], near], axis=1)
+        self.triangles = local_triangles(self.body0, self.faces, self.items0, self.foot_tri, k)
         # item edges, stacked (global vertex indices), and their item
         e = [edges(f) + a for f, a in zip(self.item_faces, self.offsets[:-1])]
         self.edge_item = np.repeat(np.arange(len(items)), [len(x) for x in e])

@@ -54,6 +54,7 @@ from .measures import MEASURES, MotionMeasures, worst_frames
 from .penetration_guard import PenetrationGuard
 from .short_edges import ShortEdgeWeld
 from .skin_transfer import transfer_weights
+from .strain_limit import StrainLimit
 
 
 @dataclass
@@ -77,6 +78,7 @@ class AnimateOptions:
     floor: str = "auto"                # "auto": first frame on the rest floor; "keep" (motion.floor)
     pose_align: bool = True            # False: the dressing's body fit by similarity only (--no-pose)
     cloth: bool | None = None          # bind mode: loose parts as XPBD cloth (None: when the plan has any)
+    strain_limit: bool = True          # bind mode: no item edge stretched beyond the body's own (strain_limit)
     max_frames: int | None = None      # refuse longer shots (retarget.OutputError)
     carry_plan: object = None          # io.usd_carry.CarryPlan: the inputs' materials, primvars... to keep
     rigid_items: str = "skinned"       # bind mode: "skinned" (shoes, hats, glasses by LBS with their binding's
@@ -366,6 +368,21 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
     if opt.mode == "bind":
         authored = ref_plan.ref_points if len(ref_plan.ref_points) == len(all_base) else all_base
         weld = ShortEdgeWeld(authored, frame_plan.mesh.edges)
+    # no edge stretched beyond the body's own stretch under it (strain_limit)
+    strain = None
+    if opt.mode == "bind" and opt.strain_limit:
+        movable = ~frame_plan.rigid_mask()
+        if rigid is not None:
+            movable[rigid.rows] = False
+        # against the static dress on the bind pose (the garment at rest on
+        # this body; the frame-0 dress of a posed first frame is stretched already)
+        if bind_dressed is None:
+            bind_dressed = _bind_dress(reference, target, dressed, opt, ref_plan)
+        rest = np.concatenate([m.points for m in bind_dressed.items])
+        rest_body = target.body.points
+        if rest.shape != all_base.shape:
+            rest, rest_body = all_base, base_body
+        strain = StrainLimit(rest, frame_plan.mesh.edges, body.faces, rest_body, movable)
     measures = None
     if opt.measure_every and opt.motion_measures:
         t0 = time.perf_counter()
@@ -429,6 +446,13 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
                 pts[pushed_rows] = push_guard.apply(body_f, pts[pushed_rows])[0]
             elif opt.mode == "bind" and not guarded:
                 pts, _ = guard.apply(body_f, pts)
+            if strain is not None:
+                if pushed_rows is not None:
+                    pushed = np.zeros(len(pts), dtype=bool)
+                    pushed[pushed_rows] = push_guard.push > 0
+                else:
+                    pushed = guard.push > 0
+                strain(body_f, pts, pushed)
             if weld is not None:
                 weld(pts)
             check_finite_points(pts, f, rt, motion.path)

@@ -64,6 +64,9 @@ def register(sub, common):
                    help="simulate the loose parts (skirts, dresses, coat tails, long hair) as XPBD cloth hanging "
                         "from their attachment, the body as collider (default: on when the items have loose parts; "
                         "bind mode only)")
+    p.add_argument("--strain-limit", action=argparse.BooleanOptionalAction, default=True,
+                   help="bind mode: shorten item edges stretched beyond 1.1x the body's own stretch under them "
+                        "after the frame's other passes, never into the body (default: on)")
     p.add_argument("--rigid-items", choices=("skinned", "bound"), default="skinned",
                    help="bind mode: rigid items (shoes, hats, glasses) and decals on the skin (eyebrows) follow "
                         "the skeleton by skinning with their "
@@ -152,7 +155,7 @@ def run(args) -> int:
                           max_frames=args.max_frames,
                           carry_plan=_carry_plan(reference, target, args),
                           hidden_body="delete" if args.delete_hidden_body else "subset",
-                          rigid_items=args.rigid_items)
+                          rigid_items=args.rigid_items, strain_limit=args.strain_limit)
     rep = animate(reference, target, motion, args.output, opts)
     t = rep.timings
     info(f"wrote {args.output}: {rep.frames} frames at {rep.fps:g} fps, {len(reference.items)} items; "

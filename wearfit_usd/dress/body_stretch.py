@@ -16,7 +16,7 @@ import numpy as np
 from ..geometry.closest import VertexNormals
 
 
-def offset_factor(ref_body, fit_body, body_faces, tri, bary, clearance, e, edge_len):
+def offset_factor(ref_body, fit_body, body_faces, tri, bary, clearance, e, edge_len, normals=None):
     """(E,) growth of item edges (E, 2) (reference lengths ``edge_len``)
     over the growth of the skin under them that comes from the item's
     clearance alone: an offset surface at distance c over skin of normal
@@ -29,16 +29,20 @@ def offset_factor(ref_body, fit_body, body_faces, tri, bary, clearance, e, edge_
     inside. Factor 1 where the skin points are less than a third of the
     edge apart (an edge standing off the skin, e.g. along a hair strand) or
     where an offset exceeds half the curvature radius of a concave part
-    (``1 + c k <= 0.5``: the offset surface folds there)."""
-    vn = VertexNormals(body_faces, len(ref_body))
+    (``1 + c k <= 0.5``: the offset surface folds there). ``normals``: the
+    two bodies' vertex normals (N, 3) if already computed (per frame of an
+    animation)."""
+    if normals is None:
+        vn = VertexNormals(body_faces, len(ref_body))
+        normals = (vn(ref_body), vn(fit_body))
     c = np.maximum(0.5 * (clearance[e[:, 0]] + clearance[e[:, 1]]), 0.0)
     used, e = np.unique(e, return_inverse=True)  # only the edges' own vertices
     e = e.reshape(-1, 2)
     f, bary = body_faces[tri[used]], bary[used]
     grow, apart = [], None
-    for body in (ref_body, fit_body):
+    for body, normal in zip((ref_body, fit_body), normals):
         p = np.einsum("mc,mci->mi", bary, body[f])
-        n = np.einsum("mc,mci->mi", bary, vn(body)[f])
+        n = np.einsum("mc,mci->mi", bary, normal[f])
         n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
         dp = p[e[:, 1]] - p[e[:, 0]]
         l2 = np.einsum("ei,ei->e", dp, dp)
@@ -71,6 +75,18 @@ def principal_stretches(ref_body: np.ndarray, fit_body: np.ndarray, faces: np.nd
     hi = np.sqrt(np.maximum(0.5 * tr + disc, 0.0))
     lo = np.sqrt(np.maximum(0.5 * tr - disc, 0.0))
     return np.where(ok, lo, 1.0), np.where(ok, hi, 1.0)
+
+
+def local_triangles(body_points: np.ndarray, body_faces: np.ndarray, points: np.ndarray, foot_triangle: np.ndarray,
+                    k: int = 5) -> np.ndarray:
+    """(M, k + 1) the body triangles an item vertex's local stretch is taken
+    over: its closest triangle ``foot_triangle`` (M,) and the ``k`` whose
+    centroids are nearest to it, on body_points (N, 3)."""
+    from scipy.spatial import cKDTree
+    kk = min(k, len(body_faces))
+    _, near = cKDTree(np.asarray(body_points)[body_faces].mean(axis=1)).query(points, k=kk)
+    near = np.asarray(near, dtype=np.int64).reshape(len(points), -1)
+    return np.concatenate([np.asarray(foot_triangle, dtype=np.int64)[:, None], near], axis=1)
 
 
 def vertex_stretch(triangles: np.ndarray, ref_body: np.ndarray, fit_body: np.ndarray, body_faces: np.ndarray):

@@ -6,7 +6,8 @@ binding product, rigid-part similarities, smoothing right side, row
 scatters), :mod:`.normals` (face, vertex and pseudo-normals),
 :mod:`.closest` (closest point among candidate triangles, signed),
 :mod:`.grid` (nearest point within a radius), :mod:`.guard` (the
-penetration guard's per-frame kernels); :mod:`.jit` is the numba switch and
+penetration guard's per-frame kernels), :mod:`.strain` (the strain limit's
+per-frame pass); :mod:`.jit` is the numba switch and
 :mod:`.warm` compiles everything ahead of time. Each public kernel runs
 compiled when numba is installed and its numpy twin otherwise (set
 WEARFIT_NO_NUMBA=1 to force the numpy paths).
@@ -35,10 +36,11 @@ from .normals import (
                       vertex_normals,
                       vertex_pseudo_normals_numpy,
 )
+from .strain import StrainRest, strain_frame
 from .warm import warm_up
 
 __all__ = ["HAVE_NUMBA", "GridArrays", "GuardBody", "GuardState", "RadiusGrid", "add_rows", "assign_rows",
            "binding_eval", "binding_eval_rows", "closest_candidates", "closest_params", "closest_signed",
            "corner_normals_numpy", "diffusion_rhs", "face_normal_sums", "face_normals",
            "guard_estimate", "guard_frame", "similarity_place", "similarity_transforms", "vertex_incidence",
-           "vertex_normals", "vertex_pseudo_normals_numpy", "warm_up"]
+           "vertex_normals", "vertex_pseudo_normals_numpy", "warm_up", "StrainRest", "strain_frame"]

@@ -13,6 +13,7 @@ from .grid import RadiusGrid
 from .guard import GuardBody, GuardState, guard_estimate, guard_frame
 from .jit import HAVE_NUMBA
 from .normals import face_normal_sums, face_normals, vertex_normals
+from .strain import StrainRest, strain_frame
 
 
 def warm_up() -> bool:
@@ -79,4 +80,10 @@ def warm_up() -> bool:
                              np.array([0, -1], dtype=np.int64), np.zeros(2), np.zeros(2)),
                 ClothBody(pts, pts, unit, unit, ptr, idx, idx.reshape(4, 3), np.zeros((1, 4)), 0.0, 0.0),
                 ClothParams(np.array([0.0, -9.81, 0.0]), 1.0, 0.3, 0.0, 1e-6, 1 / 30, 2, 2))
+    # the strain limit (animate.strain_limit): one item edge over the tetrahedron, torn
+    e = np.array([[0, 1]], dtype=np.int64)
+    local = np.zeros((2, 2), dtype=np.int64)
+    rest = StrainRest(e, np.ones(1), local, tet, np.ones((4, 3)), np.zeros(2, dtype=np.int64), np.full((2, 3), 1 / 3),
+                      np.zeros((2, 3)), unit[:2].copy(), np.zeros(2))
+    strain_frame(rest, pts, unit, np.array([[0.0, 0, 0], [3.0, 0, 0]]), np.ones(2), 1.1, 2, 0.001)
     return True

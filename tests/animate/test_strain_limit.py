@@ -1,0 +1,125 @@
+"""Strain limiting of animated items (animate.strain_limit)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from wearfit_usd.animate.strain_limit import StrainLimit
+from wearfit_usd.geometry.mesh import edges as mesh_edges
+from wearfit_usd.kernels import HAVE_NUMBA
+
+
+def plane(n=21, size=0.4):
+    """A flat body: n x n grid over [-size/2, size/2]^2 in xz at y = 0, normals +y."""
+    u = np.linspace(-size / 2, size / 2, n)
+    gx, gz = np.meshgrid(u, u, indexing="ij")
+    pts = np.stack([gx.ravel(), np.zeros(gx.size), gz.ravel()], axis=1)
+    a = (np.arange(n - 1)[:, None] * n + np.arange(n - 1)[None, :]).ravel()
+    faces = np.concatenate([np.stack([a, a + 1, a + n], 1), np.stack([a + 1, a + n + 1, a + n], 1)])
+    return pts, faces.astype(np.int64)
+
+
+def sheet(n=6, size=0.05, y=0.01):
+    """An item sheet 5 cm wide, 1 cm over the plane."""
+    u = np.linspace(-size / 2, size / 2, n)
+    gx, gz = np.meshgrid(u, u, indexing="ij")
+    pts = np.stack([gx.ravel(), np.full(gx.size, y), gz.ravel()], axis=1)
+    a = (np.arange(n - 1)[:, None] * n + np.arange(n - 1)[None, :]).ravel()
+    faces = np.concatenate([np.stack([a, a + 1, a + n], 1), np.stack([a + 1, a + n + 1, a + n], 1)])
+    return pts, mesh_edges(faces.astype(np.int64))
+
+
+def ratios(p, q, e):
+    return np.linalg.norm(p[e[:, 1]] - p[e[:, 0]], axis=1) / np.linalg.norm(q[e[:, 1]] - q[e[:, 0]], axis=1)
+
+
+def test_a_torn_vertex_is_pulled_back_within_the_limit():
+    body, faces = plane()
+    q, e = sheet()
+    lim = StrainLimit(q, e, faces, body, np.ones(len(q), dtype=bool), limit=1.1, iterations=50)
+    p = q.copy()
+    p[14] += [0.0, 0.02, 0.0]           # one vertex 2 cm out of the sheet: its edges ~2.5x
+    assert ratios(p, q, e).max() > 2.0
+    out = lim(body, p.copy())
+    assert ratios(out, q, e).max() < 1.1 + 1e-3
+    # on the skin (1.5 mm over it) the neighbours are lifted, no vertex pulled under 1 mm
+    q2, _ = sheet(y=0.0015)
+    lim2 = StrainLimit(q2, e, faces, body, np.ones(len(q2), dtype=bool), limit=1.1, iterations=50)
+    p2 = q2.copy()
+    p2[14] += [0.0, 0.02, 0.0]
+    p2[15] -= [0.0, 0.001, 0.0]        # its neighbour pressed to 0.5 mm: nothing pulls it further in
+    out2 = lim2(body, p2.copy())
+    assert out2[:, 1].min() >= 0.0005 - 1e-12
+    assert out2[np.arange(len(q2)) != 15, 1].min() >= 0.001 - 1e-12
+    assert ratios(out2, q2, e).max() < ratios(p2, q2, e).max()
+    # untouched sheet, moved rigidly: nothing to do
+    shifted = q + [0.01, 0.0, 0.0]
+    np.testing.assert_array_equal(lim(body, shifted.copy()), shifted)
+
+
+def test_the_body_s_own_stretch_is_allowed():
+    """Known answer: the body stretched 1.4x along x carries the sheet
+    stretched 1.4x along x: every edge within limit x hi, none moved."""
+    body, faces = plane()
+    q, e = sheet()
+    lim = StrainLimit(q, e, faces, body, np.ones(len(q), dtype=bool), limit=1.1)
+    body1 = body * [1.4, 1.0, 1.0]
+    p = q * [1.4, 1.0, 1.0]
+    np.testing.assert_array_equal(lim(body1, p.copy()), p)
+    # the same stretch on an unstretched body is cut back
+    out = lim(body, p.copy())
+    assert ratios(out, q, e).max() < ratios(p, q, e).max()
+
+
+def test_fixed_and_heavy_vertices():
+    body, faces = plane()
+    q, e = sheet()
+    movable = np.ones(len(q), dtype=bool)
+    movable[:6] = False                  # the first row: a rigid part
+    lim = StrainLimit(q, e, faces, body, movable, limit=1.1, iterations=20)
+    p = q.copy()
+    p[:6] += [0.0, 0.0, -0.02]           # the rigid row moved 2 cm away
+    out = lim(body, p.copy())
+    np.testing.assert_array_equal(out[:6], p[:6])
+    assert np.linalg.norm(out[6:12] - p[6:12], axis=1).min() > 1e-3   # the next row follows it
+    # a pushed (heavy) vertex moves less than its light partner
+    p = q.copy()
+    p[20] += [0.03, 0.0, 0.0]
+    pushed = np.zeros(len(q), dtype=bool)
+    pushed[20] = True
+    out = lim(body, p.copy(), pushed)
+    light = lim(body, p.copy())
+    assert np.linalg.norm(out[20] - p[20]) < 0.75 * np.linalg.norm(light[20] - p[20])
+
+
+def test_bad_input():
+    body, faces = plane()
+    q, e = sheet()
+    with pytest.raises(ValueError, match="out of range"):
+        StrainLimit(q, e + len(q), faces, body, np.ones(len(q), dtype=bool))
+    with pytest.raises(ValueError, match="limit"):
+        StrainLimit(q, e, faces, body, np.ones(len(q), dtype=bool), limit=0.9)
+    with pytest.raises(ValueError, match="movable"):
+        StrainLimit(q, e, faces, body, np.ones(3, dtype=bool))
+
+
+@pytest.mark.skipif(not HAVE_NUMBA, reason="numba not installed: the numpy path is the only one")
+def test_numba_kernel_matches_numpy_twin():
+    """The compiled pass and the numpy passes agree on a torn, pushed,
+    partly fixed sheet over a stretched and bent body."""
+    body, faces = plane()
+    q, e = sheet(y=0.004)
+    rng = np.random.default_rng(3)
+    movable = rng.random(len(q)) > 0.1
+    bent = body * [1.25, 1.0, 0.9]
+    bent[:, 1] += 0.3 * bent[:, 0] ** 2
+    p = q + rng.normal(0.0, 0.004, q.shape)
+    p[:, 1] += 0.3 * p[:, 0] ** 2
+    pushed = rng.random(len(q)) > 0.7
+    out = {}
+    for compiled in (False, True):
+        lim = StrainLimit(q, e, faces, body, movable, limit=1.1, iterations=6, compiled=compiled)
+        out[compiled] = lim(bent, np.ascontiguousarray(p.copy()), pushed)
+        assert lim.stats["edges_limited"] > 0
+    assert not np.allclose(out[False], p)
+    np.testing.assert_allclose(out[True], out[False], atol=1e-12)

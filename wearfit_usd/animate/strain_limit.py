@@ -1,0 +1,213 @@
+"""Strain limiting of the animated items: no edge stretched beyond what the
+body under it allows.
+
+Fabric stretches little; skin a lot (the front of a bending knee 1.5x).
+An item edge that follows the body may stretch as the skin under it does,
+and an offset surface over a bending joint a little more: the body's own
+stretch range of :func:`dress.body_stretch.stretch_range`, from the static
+dress to this frame, ``hi_e`` (its top end) for edge ``e``. Beyond that
+the edge is torn, by whatever moved its ends apart: the penetration
+guard pushing one end out of a crossing limb and not the other, the
+binding of two neighbours to different body parts (an armpit), the cloth's
+collisions. This is the deformation constraint of Provot (1995), "Deformation
+constraints in a mass-spring model to describe rigid cloth behavior", as a
+projection after the frame's other passes:
+
+    L_e = |x_b - x_a| > limit * hi_e * L0_e  ->
+    x_a += s_a (L_e - limit hi_e L0_e) u_e,   x_b -= s_b (...) u_e
+
+with ``u_e`` the unit edge direction, ``s_a + s_b = 1`` by the ends'
+inverse masses (a vertex the guard pushed this frame weighs ``HEAVY`` times
+as much: it is where it must be), the moves of a vertex averaged over its
+violating edges (Jacobi), ``iterations`` passes. Only edges longer than
+``limit`` times their static length are examined (the skin's stretch is
+then computed for them alone), so a frame without tears costs one pass of
+edge lengths.
+
+Arrays are numpy; metres.
+"""
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..dress.body_stretch import local_triangles, offset_factor, principal_stretches
+from ..geometry.closest import SurfaceQuery, VertexNormals
+from ..kernels import HAVE_NUMBA, StrainRest, strain_frame
+
+LIMIT = 1.1        # x the body's own stretch an edge may reach
+ITERATIONS = 8     # Jacobi passes per frame (at most)
+HEAVY = 5.0        # mass of a vertex the guard pushed, against 1
+MARGIN = 0.001     # m: no move takes a vertex closer to the skin under it than this
+
+
+class StrainLimit:
+    """``limit(body (N, 3), points (M, 3), pushed=None) -> points`` (in
+    place): item edges longer than ``limit`` x the body's own stretch under
+    them shortened (module docstring).
+
+    Parameters
+    ----------
+    items0 : (M, 3) the items dressed statically (frame 0).
+    edges : (E, 2) int, the items' edges.
+    body_faces : (T, 3) int; body0 : (N, 3) the body of ``items0``.
+    movable : (M,) bool, the vertices it may move (not the rigid parts).
+    limit, iterations : see the module docstring.
+    compiled : the numba kernel (:func:`kernels.strain.strain_frame`;
+        default: when installed) or its numpy twin (this class's own passes).
+    """
+
+    def __init__(self, items0: np.ndarray, edges: np.ndarray, body_faces: np.ndarray, body0: np.ndarray,
+                 movable: np.ndarray, limit: float = LIMIT, iterations: int = ITERATIONS,
+                 compiled: bool | None = None):
+        q = np.ascontiguousarray(items0, dtype=np.float64)
+        e = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
+        self.faces = np.ascontiguousarray(body_faces, dtype=np.int64)
+        self.body0 = np.ascontiguousarray(body0, dtype=np.float64)
+        movable = np.asarray(movable, dtype=bool)
+        if q.ndim != 2 or q.shape[1] != 3 or movable.shape != (len(q),):
+            raise ValueError(f"items0 {q.shape} and movable {movable.shape} do not match")
+        if len(e) and (e.min() < 0 or e.max() >= len(q)):
+            raise ValueError(f"edges index {len(q)} item points out of range")
+        if limit < 1.0 or iterations < 1:
+            raise ValueError(f"limit {limit} (>= 1), iterations {iterations} (>= 1)")
+        self.limit, self.iterations = float(limit), int(iterations)
+        # the edges it may shorten: one end movable, of nonzero length
+        len0 = np.linalg.norm(q[e[:, 1]] - q[e[:, 0]], axis=1)
+        keep = (movable[e[:, 0]] | movable[e[:, 1]]) & (len0 > 1e-9)
+        self.edges, self.len0 = e[keep], len0[keep]
+        self.items0 = q
+        self.inv_mass = movable.astype(np.float64)
+        foot = SurfaceQuery(self.faces, self.body0).closest(q)
+        self.foot_tri, self.foot_bary = foot["triangle"], foot["bary"]
+        self.clearance0 = foot["distance"]
+        # the skin under each vertex, as the motion measures take it
+        self.triangles = local_triangles(self.body0, self.faces, q, self.foot_tri)
+        self._vn = VertexNormals(self.faces, len(self.body0))
+        # vertex -> edge incidence (CSR rows: item vertices)
+        m, ne = len(q), len(self.edges)
+        self._incidence = sp.csr_matrix((np.ones(2 * ne), (self.edges.T.ravel(), np.tile(np.arange(ne), 2))),
+                                        shape=(m, ne))
+        self._normals0 = self._vn(self.body0)
+        self.stats = {"frames": 0, "edges_limited": 0}
+        self.compiled = HAVE_NUMBA if compiled is None else bool(compiled and HAVE_NUMBA)
+        f = self.faces
+        e1 = self.body0[f[:, 1]] - self.body0[f[:, 0]]
+        e2 = self.body0[f[:, 2]] - self.body0[f[:, 0]]
+        gram = np.stack([np.einsum("ij,ij->i", e1, e1), np.einsum("ij,ij->i", e1, e2),
+                         np.einsum("ij,ij->i", e2, e2)], axis=1)
+        ff = f[self.foot_tri]
+        foot0 = np.einsum("mc,mci->mi", self.foot_bary, self.body0[ff])
+        normal0 = np.einsum("mc,mci->mi", self.foot_bary, self._normals0[ff])
+        normal0 /= np.maximum(np.linalg.norm(normal0, axis=1, keepdims=True), 1e-300)
+        self._rest = StrainRest(np.ascontiguousarray(self.edges), np.ascontiguousarray(self.len0),
+                                np.ascontiguousarray(self.triangles), f, np.ascontiguousarray(gram),
+                                np.ascontiguousarray(self.foot_tri, dtype=np.int64),
+                                np.ascontiguousarray(self.foot_bary, dtype=np.float64), foot0, normal0,
+                                np.ascontiguousarray(self.clearance0, dtype=np.float64))
+
+    def allowed(self, body: np.ndarray, idx: np.ndarray, normals: np.ndarray | None = None) -> np.ndarray:
+        """(len(idx),) the longest each edge ``self.edges[idx]`` may be on
+        this body (N, 3): ``limit`` x its static length x the body's own
+        stretch under it (:func:`dress.body_stretch.stretch_range`'s top).
+        ``normals``: the body's vertex normals (N, 3) if already computed."""
+        e = self.edges[idx]
+        ends = np.unique(e)
+        tris = np.unique(self.triangles[ends])
+        _, hi_t = principal_stretches(self.body0, body, self.faces[tris])
+        hi_of = np.zeros(len(self.faces))
+        hi_of[tris] = hi_t
+        hi_v = hi_of[self.triangles[e]].max(axis=(1, 2))
+        if normals is None:
+            normals = self._vn(body)
+        fac = offset_factor(self.body0, body, self.faces, self.foot_tri, self.foot_bary, self.clearance0, e,
+                            self.len0[idx], normals=(self._normals0, normals))
+        return self.limit * self.len0[idx] * hi_v * np.maximum(fac, 1.0)
+
+    def _not_inward(self, body: np.ndarray, rows: np.ndarray, p: np.ndarray, step: np.ndarray) -> np.ndarray:
+        """``step`` (R, 3) of vertices ``rows`` at ``p`` (R, 3), with its
+        part into the body cut to what keeps them ``MARGIN`` outside: the
+        skin under a vertex is its static closest triangle on this body
+        (its point at the same barycentrics, that triangle's normal). A
+        strain-limited edge over a bending joint shortens along its chord,
+        into the body; the penetration pass has already run."""
+        f = self.faces[self.foot_tri[rows]]
+        v = body[f]
+        n = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+        foot = np.einsum("rc,rci->ri", self.foot_bary[rows], v)
+        clear = np.einsum("ri,ri->r", p - foot, n)
+        inward = -np.einsum("ri,ri->r", step, n)
+        room = np.maximum(clear - MARGIN, 0.0)
+        cut = np.maximum(inward - room, 0.0)
+        return step + cut[:, None] * n
+
+    def __call__(self, body: np.ndarray, points: np.ndarray, pushed: np.ndarray | None = None) -> np.ndarray:
+        self.stats["frames"] += 1
+        e = self.edges
+        if len(e) == 0:
+            return points
+        body = np.ascontiguousarray(body, dtype=np.float64)
+        if self.compiled:
+            w = self.inv_mass.copy()
+            if pushed is not None:
+                w[np.asarray(pushed, dtype=bool)] /= HEAVY
+            if not points.flags.c_contiguous or points.dtype != np.float64:
+                raise ValueError("points must be a C-contiguous float64 (M, 3) array")
+            self.stats["edges_limited"] += strain_frame(self._rest, body, self._vn(body), points, w, self.limit,
+                                                        self.iterations, MARGIN)
+            return points
+        n = len(points)
+        cap = np.full(len(e), np.inf)   # this frame's allowed lengths, computed where needed
+        known = np.zeros(len(e), dtype=bool)
+        normals = None
+        limited = np.zeros(len(e), dtype=bool)
+        active = np.arange(len(e))      # the edges that can be over: all, then those touching a moved vertex
+        w = None
+        for it in range(self.iterations):
+            ea = e[active]
+            d = points[ea[:, 1]] - points[ea[:, 0]]
+            ln = np.sqrt(np.einsum("ij,ij->i", d, d))
+            cand = ln > self.limit * self.len0[active]
+            new = active[cand & ~known[active]]
+            if len(new):
+                if normals is None:
+                    normals = self._vn(body)
+                if it == 0:
+                    # with the edges round them: the next passes' candidates, in one call
+                    new = self._with_neighbours(new)
+                    new = new[~known[new]]
+                cap[new] = self.allowed(body, new, normals)
+                known[new] = True
+            over = cand & (ln > cap[active])
+            if not over.any():
+                break
+            on = active[over]
+            limited[on] = True
+            if w is None:
+                w = self.inv_mass.copy()
+                if pushed is not None:
+                    w[np.asarray(pushed, dtype=bool)] /= HEAVY
+            ce = e[on]
+            wa, wb = w[ce[:, 0]], w[ce[:, 1]]
+            share_a = wa / np.maximum(wa + wb, 1e-300)
+            lo = ln[over]
+            c = ((lo - cap[on]) / np.maximum(lo, 1e-300))[:, None] * d[over]
+            ends = np.concatenate([ce[:, 0], ce[:, 1]])
+            moves = np.concatenate([c * share_a[:, None], -c * (1.0 - share_a)[:, None]])
+            count = np.bincount(ends, weights=np.concatenate([wa > 0, wb > 0]).astype(np.float64), minlength=n)
+            moved = np.flatnonzero(count > 0)
+            step = np.stack([np.bincount(ends, weights=moves[:, i], minlength=n)[moved] for i in range(3)], axis=1)
+            step /= count[moved, None]
+            points[moved] += self._not_inward(body, moved, points[moved], step)
+            active = self._touching(moved)
+        self.stats["edges_limited"] += int(limited.sum())
+        return points
+
+    def _touching(self, rows: np.ndarray) -> np.ndarray:
+        """The edges (indices) with an end in ``rows``."""
+        return np.unique(self._incidence[rows].indices)
+
+    def _with_neighbours(self, idx: np.ndarray) -> np.ndarray:
+        """Edges ``idx`` and every edge sharing a vertex with one of them."""
+        return np.union1d(idx, self._touching(np.unique(self.edges[idx])))

@@ -1,0 +1,202 @@
+"""The strain limit's per-frame pass (:mod:`animate.strain_limit`), compiled.
+
+One loop over the item edges per Jacobi pass: an edge longer than
+``limit`` x its rest length gets its allowed length (computed once per
+frame, from the principal stretches of the body triangles under its ends
+and the offset factor of its clearance, as
+:func:`dress.body_stretch.principal_stretches` and
+:func:`dress.body_stretch.offset_factor` compute them), and one over its
+allowed length moves its ends toward each other; then every moved vertex
+takes the mean of its moves, cut where it would go into the body. The
+numpy twin is :meth:`animate.strain_limit.StrainLimit` itself (its
+``compiled=False`` path); a test runs both.
+"""
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from .jit import jit
+
+
+class StrainRest(NamedTuple):
+    """What a frame's pass needs from the rest state, built once.
+
+    edges (E, 2) int64, len0 (E,); local (M, L) int64 body triangles under
+    each item vertex; faces (T, 3) int64; gram (T, 3) the rest triangles'
+    edge Gram entries (e1.e1, e1.e2, e2.e2); foot_tri (M,) int64 and
+    foot_bary (M, 3) each vertex's closest skin point at rest, foot0 (M, 3)
+    that point and normal0 (M, 3) the unit normal there (interpolated
+    vertex normals); clear0 (M,) the vertex's rest clearance."""
+    edges: np.ndarray
+    len0: np.ndarray
+    local: np.ndarray
+    faces: np.ndarray
+    gram: np.ndarray
+    foot_tri: np.ndarray
+    foot_bary: np.ndarray
+    foot0: np.ndarray
+    normal0: np.ndarray
+    clear0: np.ndarray
+
+
+@jit(inline=True)
+def _tri_hi(gram, faces, body, t):
+    """Largest principal stretch of triangle t from its rest Gram entries to body."""
+    a, b, c = gram[t, 0], gram[t, 1], gram[t, 2]
+    i, j, k = faces[t, 0], faces[t, 1], faces[t, 2]
+    e1x, e1y, e1z = body[j, 0] - body[i, 0], body[j, 1] - body[i, 1], body[j, 2] - body[i, 2]
+    e2x, e2y, e2z = body[k, 0] - body[i, 0], body[k, 1] - body[i, 1], body[k, 2] - body[i, 2]
+    d = e1x * e1x + e1y * e1y + e1z * e1z
+    e = e1x * e2x + e1y * e2y + e1z * e2z
+    f = e2x * e2x + e2y * e2y + e2z * e2z
+    det = a * c - b * b
+    if not det > 1e-12 * max(a * c, 1e-300):
+        return 1.0
+    tr = (c * d - 2.0 * b * e + a * f) / det
+    dt = (d * f - e * e) / det
+    disc = math.sqrt(max(0.25 * tr * tr - dt, 0.0))
+    return math.sqrt(max(0.5 * tr + disc, 0.0))
+
+
+@jit(inline=True)
+def _foot(body, normals, faces, foot_tri, foot_bary, v, out):
+    """The skin point under item vertex v on body (out[0:3]) and its unit
+    interpolated normal (out[3:6])."""
+    for c in range(6):
+        out[c] = 0.0
+    for k in range(3):
+        q = faces[foot_tri[v], k]
+        w = foot_bary[v, k]
+        for c in range(3):
+            out[c] += w * body[q, c]
+            out[3 + c] += w * normals[q, c]
+    ln = math.sqrt(out[3] * out[3] + out[4] * out[4] + out[5] * out[5])
+    ln = max(ln, 1e-300)
+    for c in range(3):
+        out[3 + c] /= ln
+
+
+@jit
+def _vertex_hi(rest, body, tri_hi, v):
+    """Largest principal stretch over the body triangles under item vertex v
+    (tri_hi: this frame's per-triangle values, -1 where not computed yet)."""
+    hi = 0.0
+    for k in range(rest.local.shape[1]):
+        t = rest.local[v, k]
+        if tri_hi[t] < 0.0:
+            tri_hi[t] = _tri_hi(rest.gram, rest.faces, body, t)
+        hi = max(hi, tri_hi[t])
+    return hi
+
+
+@jit
+def _edge_cap(rest, body, normals, limit, ei, tri_hi, vhi, feet):
+    """The longest edge ei may be on this body (see the module docstring);
+    vhi (M,) and feet (M, 6) per-vertex caches of this frame (vhi -1 where
+    not computed yet: feet then too)."""
+    a, b = rest.edges[ei, 0], rest.edges[ei, 1]
+    for v in (a, b):
+        if vhi[v] < 0.0:
+            vhi[v] = _vertex_hi(rest, body, tri_hi, v)
+            _foot(body, normals, rest.faces, rest.foot_tri, rest.foot_bary, v, feet[v])
+    hi = max(vhi[a], vhi[b])
+    # offset factor: an offset surface over skin that bends more grows more
+    c = max(0.5 * (rest.clear0[a] + rest.clear0[b]), 0.0)
+    l2r = 0.0
+    kr = 0.0
+    l2f = 0.0
+    kf = 0.0
+    for i in range(3):
+        dr = rest.foot0[b, i] - rest.foot0[a, i]
+        l2r += dr * dr
+        kr += (rest.normal0[b, i] - rest.normal0[a, i]) * dr
+        df = feet[b, i] - feet[a, i]
+        l2f += df * df
+        kf += (feet[b, 3 + i] - feet[a, 3 + i]) * df
+    ga = 1.0 + c * kr / max(l2r, 1e-300)
+    gb = 1.0 + c * kf / max(l2f, 1e-300)
+    fac = 1.0
+    third = rest.len0[ei] / 3.0
+    if l2r > third * third and ga > 0.5 and gb > 0.5:
+        fac = gb / max(ga, 0.5)
+    return limit * rest.len0[ei] * hi * max(fac, 1.0)
+
+
+@jit
+def strain_frame(rest, body, normals, points, w, limit, iterations, margin):
+    """One frame's strain limit, in place on points (M, 3); w (M,) the
+    vertices' inverse masses (0: fixed). Returns the number of edges it
+    shortened."""
+    n_e = rest.edges.shape[0]
+    m = points.shape[0]
+    cap = np.full(n_e, -1.0)
+    limited = np.zeros(n_e, dtype=np.bool_)
+    step = np.zeros((m, 3))
+    count = np.zeros(m)
+    tri_hi = np.full(rest.faces.shape[0], -1.0)
+    vhi = np.full(m, -1.0)
+    feet = np.empty((m, 6))
+    for _ in range(iterations):
+        step[:] = 0.0
+        count[:] = 0.0
+        any_over = False
+        for ei in range(n_e):
+            a, b = rest.edges[ei, 0], rest.edges[ei, 1]
+            dx = points[b, 0] - points[a, 0]
+            dy = points[b, 1] - points[a, 1]
+            dz = points[b, 2] - points[a, 2]
+            ln = math.sqrt(dx * dx + dy * dy + dz * dz)
+            if not ln > limit * rest.len0[ei]:
+                continue
+            if cap[ei] < 0.0:
+                cap[ei] = _edge_cap(rest, body, normals, limit, ei, tri_hi, vhi, feet)
+            if not ln > cap[ei]:
+                continue
+            any_over = True
+            limited[ei] = True
+            wa, wb = w[a], w[b]
+            sa = wa / max(wa + wb, 1e-300)
+            f = (ln - cap[ei]) / max(ln, 1e-300)
+            step[a, 0] += f * dx * sa
+            step[a, 1] += f * dy * sa
+            step[a, 2] += f * dz * sa
+            step[b, 0] -= f * dx * (1.0 - sa)
+            step[b, 1] -= f * dy * (1.0 - sa)
+            step[b, 2] -= f * dz * (1.0 - sa)
+            if wa > 0.0:
+                count[a] += 1.0
+            if wb > 0.0:
+                count[b] += 1.0
+        if not any_over:
+            break
+        for v in range(m):
+            if count[v] <= 0.0:
+                continue
+            sx, sy, sz = step[v, 0] / count[v], step[v, 1] / count[v], step[v, 2] / count[v]
+            # no move into the body: the skin under v is its rest closest triangle on this body
+            t = rest.foot_tri[v]
+            i, j, k = rest.faces[t, 0], rest.faces[t, 1], rest.faces[t, 2]
+            e1x, e1y, e1z = body[j, 0] - body[i, 0], body[j, 1] - body[i, 1], body[j, 2] - body[i, 2]
+            e2x, e2y, e2z = body[k, 0] - body[i, 0], body[k, 1] - body[i, 1], body[k, 2] - body[i, 2]
+            nx = e1y * e2z - e1z * e2y
+            ny = e1z * e2x - e1x * e2z
+            nz = e1x * e2y - e1y * e2x
+            nl = max(math.sqrt(nx * nx + ny * ny + nz * nz), 1e-300)
+            nx, ny, nz = nx / nl, ny / nl, nz / nl
+            px, py, pz = 0.0, 0.0, 0.0
+            for q in range(3):
+                bw = rest.foot_bary[v, q]
+                vq = rest.faces[t, q]
+                px += bw * body[vq, 0]
+                py += bw * body[vq, 1]
+                pz += bw * body[vq, 2]
+            clear = (points[v, 0] - px) * nx + (points[v, 1] - py) * ny + (points[v, 2] - pz) * nz
+            inward = -(sx * nx + sy * ny + sz * nz)
+            cut = max(inward - max(clear - margin, 0.0), 0.0)
+            points[v, 0] += sx + cut * nx
+            points[v, 1] += sy + cut * ny
+            points[v, 2] += sz + cut * nz
+    return int(limited.sum())
