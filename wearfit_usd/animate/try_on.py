@@ -371,7 +371,9 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
     # no edge stretched beyond the body's own stretch under it (strain_limit)
     strain = None
     if opt.mode == "bind" and opt.strain_limit:
-        movable = ~frame_plan.rigid_mask()
+        # not the items skinned whole (shoes, hats, eyebrows); a rigid patch of a
+        # garment is moved by the guard vertex by vertex and may tear like the rest
+        movable = np.ones(len(all_base), dtype=bool)
         if rigid is not None:
             movable[rigid.rows] = False
         # against the static dress on the bind pose (the garment at rest on
