@@ -93,17 +93,29 @@ def _vertex_hi(rest, body, tri_hi, v):
 
 
 @jit
-def _edge_cap(rest, body, normals, limit, ei, tri_hi, vhi, feet):
-    """The longest edge ei may be on this body (see the module docstring);
-    vhi (M,) and feet (M, 6) per-vertex caches of this frame (vhi -1 where
-    not computed yet: feet then too)."""
+def _skin_cap(rest, body, limit, ei, tri_hi, vhi):
+    """limit x rest length x the skin's stretch under edge ei: its allowed
+    length without the offset factor (which only raises it: a lower bound)."""
     a, b = rest.edges[ei, 0], rest.edges[ei, 1]
-    for v in (a, b):
-        if vhi[v] < 0.0:
-            vhi[v] = _vertex_hi(rest, body, tri_hi, v)
-            _foot(body, normals, rest.faces, rest.foot_tri, rest.foot_bary, v, feet[v])
-    hi = max(vhi[a], vhi[b])
-    # offset factor: an offset surface over skin that bends more grows more
+    if vhi[a] < 0.0:
+        vhi[a] = _vertex_hi(rest, body, tri_hi, a)
+    if vhi[b] < 0.0:
+        vhi[b] = _vertex_hi(rest, body, tri_hi, b)
+    return limit * rest.len0[ei] * max(vhi[a], vhi[b])
+
+
+@jit
+def _offset_factor(rest, body, normals, ei, feet, have_foot):
+    """The offset factor of edge ei (:func:`dress.body_stretch.offset_factor`);
+    feet (M, 6) a per-vertex cache of this frame's skin point and normal
+    (have_foot (M,) where filled)."""
+    a, b = rest.edges[ei, 0], rest.edges[ei, 1]
+    if not have_foot[a]:
+        _foot(body, normals, rest.faces, rest.foot_tri, rest.foot_bary, a, feet[a])
+        have_foot[a] = True
+    if not have_foot[b]:
+        _foot(body, normals, rest.faces, rest.foot_tri, rest.foot_bary, b, feet[b])
+        have_foot[b] = True
     c = max(0.5 * (rest.clear0[a] + rest.clear0[b]), 0.0)
     l2r = 0.0
     kr = 0.0
@@ -118,11 +130,10 @@ def _edge_cap(rest, body, normals, limit, ei, tri_hi, vhi, feet):
         kf += (feet[b, 3 + i] - feet[a, 3 + i]) * df
     ga = 1.0 + c * kr / max(l2r, 1e-300)
     gb = 1.0 + c * kf / max(l2f, 1e-300)
-    fac = 1.0
     third = rest.len0[ei] / 3.0
     if l2r > third * third and ga > 0.5 and gb > 0.5:
-        fac = gb / max(ga, 0.5)
-    return limit * rest.len0[ei] * hi * max(fac, 1.0)
+        return max(gb / max(ga, 0.5), 1.0)
+    return 1.0
 
 
 @jit
@@ -133,18 +144,23 @@ def strain_frame(rest, body, normals, points, w, limit, iterations, margin):
     n_e = rest.edges.shape[0]
     m = points.shape[0]
     cap = np.full(n_e, -1.0)
+    exact = np.zeros(n_e, dtype=np.bool_)  # cap with the offset factor (else the skin's lower bound)
     limited = np.zeros(n_e, dtype=np.bool_)
     step = np.zeros((m, 3))
     count = np.zeros(m)
+    moved = np.ones(m, dtype=np.bool_)  # edges with neither end moved last pass keep their length
     tri_hi = np.full(rest.faces.shape[0], -1.0)
     vhi = np.full(m, -1.0)
     feet = np.empty((m, 6))
+    have_foot = np.zeros(m, dtype=np.bool_)
     for _ in range(iterations):
         step[:] = 0.0
         count[:] = 0.0
         any_over = False
         for ei in range(n_e):
             a, b = rest.edges[ei, 0], rest.edges[ei, 1]
+            if not (moved[a] or moved[b]):
+                continue
             dx = points[b, 0] - points[a, 0]
             dy = points[b, 1] - points[a, 1]
             dz = points[b, 2] - points[a, 2]
@@ -152,9 +168,14 @@ def strain_frame(rest, body, normals, points, w, limit, iterations, margin):
             if not ln > limit * rest.len0[ei]:
                 continue
             if cap[ei] < 0.0:
-                cap[ei] = _edge_cap(rest, body, normals, limit, ei, tri_hi, vhi, feet)
+                cap[ei] = _skin_cap(rest, body, limit, ei, tri_hi, vhi)
             if not ln > cap[ei]:
                 continue
+            if not exact[ei]:
+                cap[ei] *= _offset_factor(rest, body, normals, ei, feet, have_foot)
+                exact[ei] = True
+                if not ln > cap[ei]:
+                    continue
             any_over = True
             limited[ei] = True
             wa, wb = w[a], w[b]
@@ -173,7 +194,8 @@ def strain_frame(rest, body, normals, points, w, limit, iterations, margin):
         if not any_over:
             break
         for v in range(m):
-            if count[v] <= 0.0:
+            moved[v] = count[v] > 0.0
+            if not moved[v]:
                 continue
             sx, sy, sz = step[v, 0] / count[v], step[v, 1] / count[v], step[v, 2] / count[v]
             # no move into the body: the skin under v is its rest closest triangle on this body
