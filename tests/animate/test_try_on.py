@@ -210,6 +210,18 @@ def test_cli_animate(tmp_path):
     stage = Usd.Stage.Open(str(out))
     vel = UsdGeom.Mesh(stage.GetPrimAtPath("/Root/Items/ponytail01")).GetVelocitiesAttr().Get(3)
     assert vel is not None and np.abs(np.array(vel)).max() > 0.01
+    import json
+    assert json.loads(report.read_text())["strain_limited_edges"] > 0
+    # --no-strain-limit: the pass is off, and the run's ponytail stretches more
+    off = tmp_path / "off.usda"
+    report_off = tmp_path / "off.json"
+    assert main(["animate", str(USD_DIR / "ref_female.usda"), str(USD_DIR / "body_female_heavy.usdc"),
+                 str(BVH_DIR / "cmu_09_11_run.bvh"), "-o", str(off), "--start", "1", "--end", "41",
+                 "--no-strain-limit", "--report", str(report_off), "-q"]) == 0
+    on, no = json.loads(report.read_text()), json.loads(report_off.read_text())
+    assert no["strain_limited_edges"] == -1
+    assert (on["motion_worst"]["ponytail01"]["stretch_p99"]["value"]
+            < no["motion_worst"]["ponytail01"]["stretch_p99"]["value"])
 
 
 def test_pointed_foot_keeps_the_shoes_on(tmp_path, ref_female):

@@ -103,6 +103,7 @@ class AnimateReport:
     skinned_items: list = field(default_factory=list)  # names of the items written bound to the skeleton
     skinned_rigid_items: list = field(default_factory=list)  # rigid items and skin decals skinned (bind mode)
     dress_pose: str = ""  # the pose frame 0 was dressed in: "first" or "bind" (AnimateOptions.dress_pose resolved)
+    strain_limited_edges: int = 0  # item edges the strain limit shortened, summed over the frames (-1: off)
 
     def as_dict(self) -> dict:
         return {"frames": self.frames, "fps": self.fps, "timings_s": self.timings,
@@ -112,7 +113,7 @@ class AnimateReport:
                 "motion_per_frame": self.motion_series,
                 "cloth_vertices": self.cloth_vertices, "skinned_items": self.skinned_items,
                 "skinned_rigid_items": self.skinned_rigid_items, "dress_pose": self.dress_pose,
-                "mapping": self.mapping}
+                "strain_limited_edges": self.strain_limited_edges, "mapping": self.mapping}
 
 
 #: a target body whose edges (99th percentile) are this many times the
@@ -477,6 +478,7 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
         tw = time.perf_counter()
     t_write += time.perf_counter() - tw
     rep.worst_frame_penetration = max(rep.per_frame_penetration) if rep.per_frame_penetration else 0.0
+    rep.strain_limited_edges = strain.stats["edges_limited"] if strain is not None else -1
     if measures is not None:
         rep.motion_worst = worst_frames(rep.motion_series, rep.measured_frames)
     rep.timings.update({"lbs_total": t_lbs, "evaluate_total": t_eval, "penetration_total": t_pen,
