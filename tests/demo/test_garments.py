@@ -41,17 +41,17 @@ STRETCH_P99, STRETCH_MAX = 1.15, 1.5  # issue 17: stretch beyond the body's own
 CLOTH = "loose parts: issue 17 cloth solve"
 #: (garment, clip) failing the stretch limits today, and where (see the renders)
 FAILING = {
-    # measured with the cloth solve, the seam-blended binding, the length-weighted smoothing and the guard's
-    # whole-body check of its pushes (p99 / max, this test's measure; "was": before session 17, same run)
-    ("dress", "walk"): "1.28 / 4.5: the bound bodice at the armholes with the swinging arms (was 1.27 / 7.1)",
-    ("dress", "arm_raise"): "1.45 / 3.3: the bound bodice at the armpits, lifted with the arms (was 1.45 / 7.3)",
-    ("pencil_skirt", "walk"): "1.19 / 1.51: a hem narrower than the stride must widen round the knees",
-    ("suit", "walk"): "1.53 / 4.5: the jacket at the armpits with the swinging arms (was 1.58 / 19)",
-    ("suit", "arm_raise"): "1.61 / 4.7: the jacket's armpits (was 1.64 / 8.3; 3.3 / 38 when the sleeves shredded)",
-    ("coat", "walk"): "1.54 / 7.4: the coat at the armpits (was 1.59 / 12)",
-    ("coat", "arm_raise"): "2.19 / 19: the coat's armpits (was 2.05 / 42)",
-    ("long_hair", "arm_raise"): "1.10 / 1.87: the hair lying on the shoulder (bound), lifted with the arm",
-    # ("long_hair", "walk") passes: 1.09 / 1.49 (1.09 / 1.59 before session 17)
+    # measured with the cloth solve, the seam-blended binding, the length-weighted smoothing, the guard's
+    # whole-body check of its pushes and the strain limit (p99 / max, this test's measure; "was": before
+    # session 20's strain limit, same run)
+    ("dress", "walk"): "1.19 / 2.41: the bound bodice at the armholes with the swinging arms (was 1.28 / 4.55)",
+    ("dress", "arm_raise"): "1.20 / 2.42: the bound bodice at the armpits, lifted with the arms (was 1.44 / 3.29)",
+    ("suit", "walk"): "1.25 / 3.22: the jacket at the armpits with the swinging arms (was 1.53 / 4.45)",
+    ("suit", "arm_raise"): "1.39 / 2.69: the jacket's armpits (was 1.61 / 4.66)",
+    ("coat", "walk"): "1.25 / 3.55: the coat at the armpits (was 1.54 / 7.39)",
+    ("coat", "arm_raise"): "1.60 / 5.38: the coat's armpits (was 2.19 / 19.3)",
+    # passing: ("pencil_skirt", "walk") 1.12 / 1.28 (was 1.19 / 1.51), ("long_hair", "arm_raise") 1.10 / 1.42
+    # (was 1.10 / 1.87), ("long_hair", "walk") 1.11 / 1.27, ("pencil_skirt", "arm_raise") 1.04 / 1.07
 }
 
 
