@@ -41,7 +41,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from ..dress.body_stretch import local_triangles, offset_factor, principal_stretches
+from ..dress.body_stretch import local_triangles, offset_factor, principal_stretches, triangle_grams
 from ..geometry.closest import SurfaceQuery, VertexNormals
 from ..kernels import HAVE_NUMBA, StrainRest, strain_frame
 
@@ -86,7 +86,6 @@ class StrainLimit:
         len0 = np.linalg.norm(q[e[:, 1]] - q[e[:, 0]], axis=1)
         keep = (movable[e[:, 0]] | movable[e[:, 1]]) & (len0 > 1e-9)
         self.edges, self.len0 = e[keep], len0[keep]
-        self.items0 = q
         self.inv_mass = movable.astype(np.float64)
         foot = SurfaceQuery(self.faces, self.body0).closest(q)
         self.foot_tri, self.foot_bary = foot["triangle"], foot["bary"]
@@ -94,18 +93,16 @@ class StrainLimit:
         # the skin under each vertex, as the motion measures take it
         self.triangles = local_triangles(self.body0, self.faces, q, self.foot_tri)
         self._vn = VertexNormals(self.faces, len(self.body0))
-        # vertex -> edge incidence (CSR rows: item vertices)
-        m, ne = len(q), len(self.edges)
-        self._incidence = sp.csr_matrix((np.ones(2 * ne), (self.edges.T.ravel(), np.tile(np.arange(ne), 2))),
-                                        shape=(m, ne))
         self._normals0 = self._vn(self.body0)
         self.stats = {"frames": 0, "edges_limited": 0}
         self.compiled = HAVE_NUMBA if compiled is None else bool(compiled and HAVE_NUMBA)
+        if not self.compiled:
+            # vertex -> edge incidence (CSR rows: item vertices), for the numpy passes' active edges
+            m, ne = len(q), len(self.edges)
+            self._incidence = sp.csr_matrix((np.ones(2 * ne), (self.edges.T.ravel(), np.tile(np.arange(ne), 2))),
+                                            shape=(m, ne))
         f = self.faces
-        e1 = self.body0[f[:, 1]] - self.body0[f[:, 0]]
-        e2 = self.body0[f[:, 2]] - self.body0[f[:, 0]]
-        gram = np.stack([np.einsum("ij,ij->i", e1, e1), np.einsum("ij,ij->i", e1, e2),
-                         np.einsum("ij,ij->i", e2, e2)], axis=1)
+        gram = triangle_grams(self.body0, f)
         ff = f[self.foot_tri]
         foot0 = np.einsum("mc,mci->mi", self.foot_bary, self.body0[ff])
         normal0 = np.einsum("mc,mci->mi", self.foot_bary, self._normals0[ff])

@@ -53,18 +53,23 @@ def offset_factor(ref_body, fit_body, body_faces, tri, bary, clearance, e, edge_
     return np.where(apart & (a > 0.5) & (b > 0.5), b / np.maximum(a, 0.5), 1.0)
 
 
+def triangle_grams(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(T, 3) the Gram entries (e1.e1, e1.e2, e2.e2) of each triangle's
+    edges e1 = v2 - v1, e2 = v3 - v1 on points (N, 3)."""
+    e1 = points[faces[:, 1]] - points[faces[:, 0]]
+    e2 = points[faces[:, 2]] - points[faces[:, 0]]
+    return np.stack([np.einsum("ij,ij->i", e1, e1), np.einsum("ij,ij->i", e1, e2),
+                     np.einsum("ij,ij->i", e2, e2)], axis=1)
+
+
 def principal_stretches(ref_body: np.ndarray, fit_body: np.ndarray, faces: np.ndarray):
     """(smallest (T,), largest (T,)) principal stretch of every triangle
     (T, 3) from ref_body to fit_body (N, 3): the extremes of the length ratio
     of a segment in the triangle over all its directions (the singular
     values of the in-plane deformation); its three edges' ratios lie in
     between. Degenerate reference triangles get (1, 1)."""
-    def gram(p):
-        e1 = p[faces[:, 1]] - p[faces[:, 0]]
-        e2 = p[faces[:, 2]] - p[faces[:, 0]]
-        return (np.einsum("ij,ij->i", e1, e1), np.einsum("ij,ij->i", e1, e2), np.einsum("ij,ij->i", e2, e2))
-    a, b, c = gram(np.asarray(ref_body, dtype=np.float64))
-    d, e, f = gram(np.asarray(fit_body, dtype=np.float64))
+    a, b, c = triangle_grams(np.asarray(ref_body, dtype=np.float64), faces).T
+    d, e, f = triangle_grams(np.asarray(fit_body, dtype=np.float64), faces).T
     det = a * c - b * b
     ok = det > 1e-12 * np.maximum(a * c, 1e-300)
     det = np.where(ok, det, 1.0)
