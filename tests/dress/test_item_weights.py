@@ -13,14 +13,17 @@ import pytest
 from tests.conftest import BVH_DIR, USD_DIR
 from wearfit_usd.dress.binding import bind
 from wearfit_usd.dress.item_weights import (
+    HINGE_BAND,
     MAX_INFLUENCES,
     articulated_pieces,
     articulated_weights,
+    hinge_band,
     item_skin_weights,
     piece_joints,
     prune,
     rigid_group_weights,
 )
+from wearfit_usd.geometry.mesh import edges as mesh_edges
 from wearfit_usd.geometry.mesh import similarity_fit
 
 # a unit square of two triangles; each corner on one joint of four
@@ -283,3 +286,61 @@ def test_regions_of_a_rig_carried_onto_a_scan_are_those_of_the_reference():
     want = joint_regions(skel)
     assert len(set(want.tolist())) == 6
     assert (joint_regions(carried) == want).all()
+
+
+def test_a_hinge_band_spreads_a_step_in_a_pieces_share_linearly_over_its_width():
+    """A strip of 12 vertices 5 mm apart whose share steps from 0 to 1
+    between x = -2.5 and +2.5 mm: spread over 30 mm the share is
+    clip(1/2 + x / 0.03, 0, 1); a separate piece the line does not cross
+    keeps its shares."""
+    x = np.arange(-27.5, 30.0, 5.0) / 1000.0
+    share = np.r_[(x > 0).astype(float), 0.2, 0.3]
+    edges = np.r_[np.c_[np.arange(11), np.arange(1, 12)], [[12, 13]]]
+    lengths = np.r_[np.full(11, 0.005), 0.01]
+    out = hinge_band(share, edges, lengths, width=0.03)
+    np.testing.assert_allclose(out[:12], np.clip(0.5 + x / 0.03, 0.0, 1.0), atol=1e-12)
+    np.testing.assert_array_equal(out[12:], [0.2, 0.3])
+    # a share already between the pieces: the crossing where it is 1/2
+    out = hinge_band(np.array([0.0, 0.25, 0.75, 1.0]), np.c_[[0, 1, 2], [1, 2, 3]], np.full(3, 0.01), width=0.02)
+    np.testing.assert_allclose(out, [0.0, 0.25, 0.75, 1.0], atol=1e-12)
+    np.testing.assert_array_equal(hinge_band(share, edges, lengths, width=0.0), share)
+    with pytest.raises(ValueError, match="lengths"):
+        hinge_band(share, edges, lengths[:-1])
+
+
+def test_a_shoe_bent_at_the_toe_stretches_over_its_hinge_band_not_one_edge():
+    """A shoe's upper 3 cm above the toe joint's axis (x = 0.15), a grid
+    5 mm apart, whose skin hands it from the foot (3) to the toes (4)
+    between two neighbouring columns. Toes bent down by 0.5 rad: with the
+    hinge on that one edge the edge stretches 3.9x; spread over the band
+    (``HINGE_BAND``, 15 mm) it stays within the triangle inequality's bound
+    1 + max |R p - p| / HINGE_BAND over the band's vertices p (2.1; 2.0
+    measured), and the sole and toe cap stay rigid."""
+    xs = np.arange(0.0, 0.2501, 0.005)
+    gx, gy = np.meshgrid(xs, [0.0, 0.01], indexing="ij")
+    pts = np.c_[gx.ravel(), gy.ravel(), np.full(gx.size, 0.03)]
+    n = len(xs)
+    idx = np.arange(2 * n).reshape(n, 2)
+    faces = np.r_[np.c_[idx[:-1, 0], idx[1:, 0], idx[1:, 1]], np.c_[idx[:-1, 0], idx[1:, 1], idx[:-1, 1]]]
+    e = mesh_edges(faces)
+    lengths = np.linalg.norm(pts[e[:, 1]] - pts[e[:, 0]], axis=1)
+    skin = np.zeros((len(pts), 7))
+    toe = pts[:, 0] > 0.1525
+    skin[toe, 4] = 1.0
+    skin[~toe, 3] = 1.0
+    mats = np.tile(np.eye(4), (7, 1, 1))
+    mats[[4, 5]] = _rot([0, 1, 0], 0.5, np.array([0.15, 0.0, 0.0]))  # toes down: the upper stretches
+    ratios = {}
+    for name, band in (("edge", None), ("band", (e, lengths))):
+        w = articulated_weights(skin, LEG_PARENTS, band=band)
+        posed = _skin(pts, w, mats)
+        ratios[name] = (np.linalg.norm(posed[e[:, 1]] - posed[e[:, 0]], axis=1) / lengths).max()
+        for p in articulated_pieces(w):
+            s, r, t = similarity_fit(pts[p], posed[p])
+            assert np.linalg.norm(s * pts[p] @ r + t - posed[p], axis=1).max() < 1e-9
+    in_band = (w[:, 3] > 0) & (w[:, 4] > 0)
+    assert in_band.sum() == 4  # two columns of the grid
+    moved = np.linalg.norm(_skin(pts, np.eye(7)[[4] * len(pts)], mats) - pts, axis=1)
+    bound = 1.0 + moved[in_band].max() / HINGE_BAND
+    assert ratios["edge"] > 3.5, ratios
+    assert ratios["band"] <= bound + 1e-9 and bound < 2.2, (ratios, bound)
