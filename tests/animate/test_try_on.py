@@ -266,8 +266,10 @@ def test_shoes_keep_to_the_feet_in_the_walk(tmp_path, ref_female):
     60 frames: bound (the binding, a rigid fit per part and the push-out)
     coverage loss 3.96 %, separation p95 10.6 mm, stretch max 7.7x, its
     articulated pieces 45 mm off a similarity; skinned (articulated weights)
-    0.36 %, 2.6 mm, 1.94x, 0 mm. The same shot with ``rigid_items="bound"`` is
-    the old path, and must stay as bad as it was (the option is real)."""
+    0.36 %, 2.6 mm, 1.94x, 0 mm; with the toes' hinge over a 15 mm band and
+    the hinges' vertices strain-limited, stretch max 1.10x. The same shot
+    with ``rigid_items="bound"`` is the old path, and must stay as bad as it
+    was (the option is real)."""
     target = read_character(USD_DIR / "body_female_thin.usdc")
     clip = read_bvh(BVH_DIR / "cmu_07_01_walk.bvh")
     figs, brows = {}, {}
@@ -283,7 +285,8 @@ def test_shoes_keep_to_the_feet_in_the_walk(tmp_path, ref_female):
     assert brows["skinned"]["coverage_loss_pct"] == 0.0 and brows["skinned"]["separation_p95_mm"] < 0.05, brows
     assert brows["bound"]["separation_p95_mm"] > 0.5, brows
     s, b = figs["skinned"], figs["bound"]
-    assert s["coverage_loss_pct"] <= 1.0 and s["separation_p95_mm"] <= 3.5 and s["stretch_max"] <= 2.5, s
+    # issue 17's stretch limits (max 1.5x, p99 1.15x beyond the skin's)
+    assert s["coverage_loss_pct"] <= 1.0 and s["separation_p95_mm"] <= 3.5 and s["stretch_max"] <= 1.5, s
     assert s["new_pen_pct"] <= 0.5 and s["stretch_p99"] <= 1.15, s
     # articulated: sole, toe cap and collar each rigid (issue 17's 2 mm)
     assert s["rigid_mm"] <= 2.0, s
@@ -370,3 +373,24 @@ def test_sub_millimetre_edges_hold_together(tmp_path, ref_female_longskirt, bvh_
         p = _item_points(stage, "bob01", f)
         ln = np.linalg.norm(p[short[:, 0]] - p[short[:, 1]], axis=1)
         assert ln.max() < 0.002, (f, ln.max())
+
+
+def test_the_strain_limit_may_move_a_shoes_hinge_but_not_its_pieces():
+    """The rigid items' rows the strain limit may move: a shoe's hinge
+    vertices (weighted on two joints, in no rigid piece), never its
+    pieces' vertices, nor any vertex of a skin decal (the eyebrows, on the
+    skin's blended weights but not articulated)."""
+    from types import SimpleNamespace
+
+    from wearfit_usd.animate.try_on import _RigidItems
+    ji = np.array([[0, 1], [0, 1], [1, 0], [0, 1]])
+    shoe = SimpleNamespace(name="shoe", points=np.zeros((4, 3)), joint_indices=ji,
+                           joint_weights=np.array([[1.0, 0.0], [0.7, 0.3], [1.0, 0.0], [0.5, 0.5]]))
+    brow = SimpleNamespace(name="brow", points=np.zeros((2, 3)), joint_indices=ji[:2],
+                           joint_weights=np.array([[0.6, 0.4], [0.5, 0.5]]))
+    top = SimpleNamespace(name="top", points=np.zeros((3, 3)), joint_indices=ji[:3],
+                          joint_weights=np.array([[0.6, 0.4], [1.0, 0.0], [0.5, 0.5]]))
+    rigid = _RigidItems([top, shoe, brow], {"shoe", "brow"}, ["top", "shoe", "brow"],
+                        np.array([0, 3, 7, 9]), 2, hinged={"shoe"})
+    assert rigid.rows.tolist() == [3, 4, 5, 6, 7, 8]
+    assert rigid.hinge_rows.tolist() == [4, 6]

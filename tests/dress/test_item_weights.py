@@ -292,7 +292,8 @@ def test_a_hinge_band_spreads_a_step_in_a_pieces_share_linearly_over_its_width()
     """A strip of 12 vertices 5 mm apart whose share steps from 0 to 1
     between x = -2.5 and +2.5 mm: spread over 30 mm the share is
     clip(1/2 + x / 0.03, 0, 1); a separate piece the line does not cross
-    keeps its shares."""
+    keeps its shares; a share already rising over the band is kept; the
+    ends of a crossed edge longer than the band stay in the band."""
     x = np.arange(-27.5, 30.0, 5.0) / 1000.0
     share = np.r_[(x > 0).astype(float), 0.2, 0.3]
     edges = np.r_[np.c_[np.arange(11), np.arange(1, 12)], [[12, 13]]]
@@ -304,6 +305,11 @@ def test_a_hinge_band_spreads_a_step_in_a_pieces_share_linearly_over_its_width()
     out = hinge_band(np.array([0.0, 0.25, 0.75, 1.0]), np.c_[[0, 1, 2], [1, 2, 3]], np.full(3, 0.01), width=0.02)
     np.testing.assert_allclose(out, [0.0, 0.25, 0.75, 1.0], atol=1e-12)
     np.testing.assert_array_equal(hinge_band(share, edges, lengths, width=0.0), share)
+    # a crossed edge 40 mm long, longer than the band: its ends inside the
+    # band at 0.1 and 0.9 (no edge joins the two pieces), the next ones on them
+    out = hinge_band(np.array([0.0, 0.0, 1.0, 1.0]), np.c_[[0, 1, 2], [1, 2, 3]],
+                     np.array([0.02, 0.04, 0.02]), width=0.015)
+    np.testing.assert_allclose(out, [0.0, 0.1, 0.9, 1.0], atol=1e-12)
     with pytest.raises(ValueError, match="lengths"):
         hinge_band(share, edges, lengths[:-1])
 

@@ -33,7 +33,7 @@ import numpy as np
 from ..dress.apply import apply as apply_plan
 from ..dress.apply import dress
 from ..dress.hidden_body import SHOT_DEPTH, SHOT_MAX_GAP, hide_or_drop
-from ..dress.item_weights import SKINNED_SUFFIX, rigid_pieces, skinned_items
+from ..dress.item_weights import PIECE_WEIGHT, SKINNED_SUFFIX, rigid_pieces, skinned_items
 from ..dress.plan import DressPlan
 from ..dress.plan import plan as plan_dress
 from ..errors import NonFiniteError, USDInputError
@@ -330,7 +330,8 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
     # rigid items (shoes, hats, glasses) skinned to the skeleton (see _RigidItems)
     rigid = None
     if whole:
-        rigid = _RigidItems(skin_src, whole, [m.name for m in items], offsets, target.skeleton.n_joints)
+        rigid = _RigidItems(skin_src, whole, [m.name for m in items], offsets, target.skeleton.n_joints,
+                            hinged=ref_plan.wholly_rigid())
         rep.skinned_rigid_items = rigid.names
     rep.timings["bind"] = time.perf_counter() - t0
     # clearances to keep (and "new penetration" = inside now, outside when dressed)
@@ -372,11 +373,14 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
     # no edge stretched beyond the body's own stretch under it (strain_limit)
     strain = None
     if opt.mode == "bind" and opt.strain_limit:
-        # not the items skinned whole (shoes, hats, eyebrows); a rigid patch of a
-        # garment is moved by the guard vertex by vertex and may tear like the rest
+        # not the items skinned whole (shoes, hats, eyebrows) but their
+        # hinges' vertices (a shoe's between the sole and the toe cap or the
+        # collar: in no rigid piece); a rigid patch of a garment is moved by
+        # the guard vertex by vertex and may tear like the rest
         movable = np.ones(len(all_base), dtype=bool)
         if rigid is not None:
             movable[rigid.rows] = False
+            movable[rigid.hinge_rows] = True
         # against the static dress on the bind pose (the garment at rest on
         # this body; the frame-0 dress of a posed first frame is stretched already)
         if bind_dressed is None:
@@ -563,12 +567,16 @@ class _RigidItems:
 
     ``skinned``: the shot's items skinned to the bind pose, in its order
     (``order``); ``rows`` (R,) the rigid items' rows among the stacked items
-    (``offsets``); ``skinner(skin_mats)`` -> (R, 3) their points."""
+    (``offsets``); ``skinner(skin_mats)`` -> (R, 3) their points.
+    ``hinge_rows``: the rows of the items in ``hinged`` (the articulated
+    ones: shoes) that are in no rigid piece (a hinge's vertices, weighted
+    on two joints)."""
 
-    def __init__(self, skinned: list, names: set, order: list, offsets: np.ndarray, n_joints: int):
+    def __init__(self, skinned: list, names: set, order: list, offsets: np.ndarray, n_joints: int,
+                 hinged: set = frozenset()):
         if [m.name for m in skinned] != list(order):
             raise RuntimeError(f"skinned items {[m.name for m in skinned]} not in the shot's order {order}")
-        rows, pts, ji, jw = [], [], [], []
+        rows, pts, ji, jw, hinge = [], [], [], [], []
         self.names = []
         for i, m in enumerate(skinned):
             if m.name not in names:
@@ -578,7 +586,10 @@ class _RigidItems:
             pts.append(m.points)
             ji.append(m.joint_indices)
             jw.append(m.joint_weights)
+            hinge.append(np.asarray(m.joint_weights).max(axis=1) < PIECE_WEIGHT
+                         if m.name in hinged else np.zeros(len(m.points), dtype=bool))
         self.rows = np.concatenate(rows).astype(np.int64)
+        self.hinge_rows = self.rows[np.concatenate(hinge)]
         self.skinner = Skinner(np.concatenate(pts), np.concatenate(ji), np.concatenate(jw), n_joints)
 
 

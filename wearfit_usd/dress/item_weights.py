@@ -163,7 +163,9 @@ def hinge_band(share: np.ndarray, edges: np.ndarray, lengths: np.ndarray, width:
     (linearly between the two ends of each edge it crosses); each vertex's
     distance ``d`` to it along the edges (Dijkstra) gives the new share
     ``clip(1/2 + s d / width, 0, 1)``, ``s`` = +1 on the piece's side
-    (``share >= 1/2``) and -1 on the other. A shoe then bends at the toe
+    (``share >= 1/2``) and -1 on the other; the two ends of a crossed edge
+    longer than ``width`` get ``clip(1/2 + s d / max(width, d / 0.4))``,
+    0.1 and 0.9 at most, so that no edge joins the two pieces directly. A shoe then bends at the toe
     over ``width`` of its upper and sole, not over one edge, so its edges
     stretch no more than the skin they cover: bending by an angle ``a``
     with the surface ``h`` from the joint's axis lengthens (or shortens)
@@ -209,7 +211,12 @@ def hinge_band(share: np.ndarray, edges: np.ndarray, lengths: np.ndarray, width:
                            (np.concatenate([a, b, np.full(len(src), p)]),
                             np.concatenate([b, a, src]))), shape=(p + 1, p + 1))
     d = dijkstra(graph, directed=True, indices=p)[:p]
-    out = np.clip(0.5 + np.where(inside, d, -d) / width, 0.0, 1.0)
+    # the ends of a crossed edge longer than the band stay inside it (at
+    # 0.1 and 0.9 at most), not on the pieces: a shoe's 22 mm sole edge
+    # then bends over three edges, not one
+    w = np.full(p, float(width))
+    w[src] = np.maximum(width, start[src] / 0.4)
+    out = np.clip(0.5 + np.where(inside, d, -d) / w, 0.0, 1.0)
     return np.where(np.isfinite(d), out, share)
 
 
