@@ -351,13 +351,16 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
     if cloth is not None or rigid is not None:
         # the cloth keeps its own distance from the body: the guard would pull
         # it back to its frame-0 clearance; "new penetration" still counts it.
-        # Skinned rigid items are left as skinning puts them (pushed, a shoe bends)
+        # Skinned rigid items are left as skinning puts them (a shoe bends)
         keep = np.ones(len(all_base), dtype=bool)
         if cloth is not None:
             keep &= cloth.weights <= 0
             rep.cloth_vertices = cloth.n_free
         if rigid is not None:
+            # but their hinges' vertices (a shoe's collar, its toe band),
+            # which sank up to 8 mm into the ankle (shoes01, arms held high)
             keep[rigid.rows] = False
+            keep[rigid.hinge_rows] = True
         pushed_rows = np.flatnonzero(keep)
         nb = frame_plan.mesh.neighbours.tocsr()
         push_guard = PenetrationGuard(body.faces, base_body, all_base[pushed_rows], margin=opt.penetration_margin,
@@ -430,6 +433,10 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
             body_f = body0 if f == 0 else body_skinner(skin_mats(f))
             tb = time.perf_counter()
             pts = evaluator(f, body_f)
+            if rigid is not None:
+                # before the guard, which pushes their hinges' vertices
+                rigid_pts = rigid.skinner(skin_mats(f))
+                pts[rigid.rows] = rigid_pts
             guarded = False
             if cloth is not None and f > 0:
                 # the bound vertices pushed out first, the cloth's targets
@@ -446,8 +453,8 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
                 pts = cloth.step(body_f, pts, 1.0 / rt.fps)
             elif cloth is not None:
                 pts = cloth_pts0
-            if rigid is not None:
-                pts[rigid.rows] = rigid.skinner(skin_mats(f))
+                if rigid is not None:
+                    pts[rigid.rows] = rigid_pts
             tc = time.perf_counter()
             if opt.mode == "bind" and pushed_rows is not None and not guarded:
                 pts[pushed_rows] = push_guard.apply(body_f, pts[pushed_rows])[0]
