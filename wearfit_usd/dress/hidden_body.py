@@ -49,7 +49,9 @@ SHOT_MAX_GAP = 0.03
 class Coverage:
     """Per item, per body vertex: covered (I, N) bool and the distance
     along the normal to the item (I, N), inf where not covered; per item,
-    per polygon, whether its centre is covered (I, P) bool."""
+    per polygon, whether its centre is covered (I, P) bool, tested only for
+    the polygons whose every corner some item covers (False elsewhere:
+    those cannot be hidden)."""
     names: list
     vertex: np.ndarray
     gap: np.ndarray
@@ -79,10 +81,9 @@ def coverage(body_points: np.ndarray, body_faces: np.ndarray, counts: np.ndarray
     cn = np.zeros((len(counts), 3))
     np.add.at(cn, poly, nrm[indices])
     cn /= np.maximum(np.linalg.norm(cn, axis=1, keepdims=True), 1e-12)
-    names, vert, gap, centre = [], [], [], []
-    for name, ip, ifc in items:
-        ip = np.asarray(ip, dtype=np.float64)
-        ifc = np.asarray(ifc, dtype=np.int64)
+    names, vert, gap = [], [], []
+    meshes = [(np.asarray(ip, dtype=np.float64), np.asarray(ifc, dtype=np.int64)) for _, ip, ifc in items]
+    for (name, _, _), (ip, ifc) in zip(items, meshes):
         hit = cast_rays(pts, nrm, ip, ifc, -inset, reach)
         g = np.full(len(pts), np.inf)
         v = np.flatnonzero(hit >= 0)
@@ -97,10 +98,16 @@ def coverage(body_points: np.ndarray, body_faces: np.ndarray, counts: np.ndarray
         names.append(name)
         vert.append(hit >= 0)
         gap.append(g)
-        centre.append(cast_rays(cen, cn, ip, ifc, -inset, reach) >= 0)
     n, p = len(pts), len(counts)
-    return Coverage(names, np.array(vert).reshape(-1, n), np.array(gap).reshape(-1, n),
-                    np.array(centre).reshape(-1, p))
+    vert = np.array(vert).reshape(-1, n)
+    # the centres only of polygons whose corners some item covers: no other
+    # can be hidden (ref_male on body_male_heavy: 0.48 -> 0.44 s, the same subsets)
+    centre = np.zeros((len(items), p), dtype=bool)
+    if len(items):
+        cand = np.flatnonzero(_all_corners(vert.any(axis=0), counts, indices))
+        for i, (ip, ifc) in enumerate(meshes):
+            centre[i, cand] = cast_rays(cen[cand], cn[cand], ip, ifc, -inset, reach) >= 0
+    return Coverage(names, vert, np.array(gap).reshape(-1, n), centre)
 
 
 def _all_corners(mask: np.ndarray, counts: np.ndarray, indices: np.ndarray) -> np.ndarray:
