@@ -18,12 +18,10 @@ projection after the frame's other passes:
 
 with ``u_e`` the unit edge direction, ``s_a + s_b = 1`` by the ends'
 inverse masses (a vertex the guard pushed this frame weighs ``HEAVY`` times
-as much: it is where it must be), each edge's correction applied at once
-(Gauss-Seidel; the edges in colour order, no two of a colour sharing a
-vertex, so the numpy passes move a colour at a time), ``iterations``
-passes, and no move taking a vertex closer than ``MARGIN`` to the skin
-under it (an edge over a bending joint shortens along its chord, into the
-body). Only edges longer than
+as much: it is where it must be), the moves of a vertex averaged over its
+violating edges (Jacobi), ``iterations`` passes, and no move taking a
+vertex closer than ``MARGIN`` to the skin under it (an edge over a bending
+joint shortens along its chord, into the body). Only edges longer than
 ``limit`` times their static length are examined (the skin's stretch is
 then computed for them alone), so a frame without tears costs one pass of
 edge lengths.
@@ -34,29 +32,21 @@ the clips): stretch p99 of the long skirt 1.32 -> 1.15,
 new penetrations 0.25 -> 0.41 %, 0.68 -> 0.85 %, 0.31 -> 0.35 % (0.60,
 0.96, 0.37 % when moves could go into the body). The compiled pass
 (:func:`kernels.strain.strain_frame`) takes 1.2 ms a frame for
-``ref_male``'s 25,101 item edges, this numpy twin 17 ms (both with 8
-Jacobi passes, each vertex moved by the mean of its edges' corrections).
-Gauss-Seidel converges further in the same passes: figures over issue
-17's limits 151 (Jacobi, 8 passes) -> 131 (Gauss-Seidel, 8) -> 122
-(Gauss-Seidel, 16; Jacobi with 32 passes: 129, 1.5x the sweep's time);
-means over the clips, stretch max of ``male_casualsuit01`` 2.03 -> 1.72,
-``female_casualsuit01`` 1.44 -> 1.23, the long skirt 1.41 -> 1.28; new
-penetrations of the long skirt 0.41 -> 0.49 %, ``ponytail01`` 0.08 ->
-0.15 %.
+``ref_male``'s 25,101 item edges, this numpy twin 17 ms.
 
 Arrays are numpy; metres.
 """
 from __future__ import annotations
 
 import numpy as np
+import scipy.sparse as sp
 
 from ..dress.body_stretch import local_triangles, offset_factor, principal_stretches, triangle_grams
 from ..geometry.closest import SurfaceQuery, VertexNormals
 from ..kernels import HAVE_NUMBA, StrainRest, strain_frame
-from .cloth import colour_edges
 
 LIMIT = 1.1        # x the body's own stretch an edge may reach
-ITERATIONS = 16    # Gauss-Seidel passes per frame (at most)
+ITERATIONS = 8     # Jacobi passes per frame (at most)
 HEAVY = 5.0        # mass of a vertex the guard pushed, against 1
 MARGIN = 0.001     # m: no move takes a vertex closer to the skin under it than this
 
@@ -95,10 +85,7 @@ class StrainLimit:
         # the edges it may shorten: one end movable, of nonzero length
         len0 = np.linalg.norm(q[e[:, 1]] - q[e[:, 0]], axis=1)
         keep = (movable[e[:, 0]] | movable[e[:, 1]]) & (len0 > 1e-9)
-        # in colour order: no two edges of one colour share a vertex, so a
-        # colour's corrections apply at once (Gauss-Seidel by colours)
-        order, self.colour_ptr = colour_edges(e[keep], len(q))
-        self.edges, self.len0 = e[keep][order], len0[keep][order]
+        self.edges, self.len0 = e[keep], len0[keep]
         self.inv_mass = movable.astype(np.float64)
         foot = SurfaceQuery(self.faces, self.body0).closest(q)
         self.foot_tri, self.foot_bary = foot["triangle"], foot["bary"]
@@ -109,6 +96,11 @@ class StrainLimit:
         self._normals0 = self._vn(self.body0)
         self.stats = {"frames": 0, "edges_limited": 0}
         self.compiled = HAVE_NUMBA if compiled is None else bool(compiled and HAVE_NUMBA)
+        if not self.compiled:
+            # vertex -> edge incidence (CSR rows: item vertices), for the numpy passes' active edges
+            m, ne = len(q), len(self.edges)
+            self._incidence = sp.csr_matrix((np.ones(2 * ne), (self.edges.T.ravel(), np.tile(np.arange(ne), 2))),
+                                            shape=(m, ne))
         f = self.faces
         gram = triangle_grams(self.body0, f)
         ff = f[self.foot_tri]
@@ -174,46 +166,57 @@ class StrainLimit:
             if work is not points:
                 points[:] = work
             return points
+        n = len(points)
         cap = np.full(len(e), np.inf)   # this frame's allowed lengths, computed where needed
         known = np.zeros(len(e), dtype=bool)
         normals = None
         limited = np.zeros(len(e), dtype=bool)
-        w = self.inv_mass.copy()
-        if pushed is not None:
-            w[np.asarray(pushed, dtype=bool)] /= HEAVY
-        ptr = self.colour_ptr
-        for _ in range(self.iterations):
-            any_over = False
-            for c in range(len(ptr) - 1):
-                lo_c = int(ptr[c])
-                ce = e[lo_c:int(ptr[c + 1])]
-                d = points[ce[:, 1]] - points[ce[:, 0]]
-                ln = np.sqrt(np.einsum("ij,ij->i", d, d))
-                cand = np.flatnonzero(ln > self.limit * self.len0[lo_c:int(ptr[c + 1])])
-                if len(cand) == 0:
-                    continue
-                new = cand[~known[cand + lo_c]] + lo_c
-                if len(new):
-                    if normals is None:
-                        normals = self._vn(body)
-                    cap[new] = self.allowed(body, new, normals)
-                    known[new] = True
-                over = cand[ln[cand] > cap[cand + lo_c]]
-                if len(over) == 0:
-                    continue
-                any_over = True
-                on = over + lo_c
-                limited[on] = True
-                oe = e[on]
-                wa, wb = w[oe[:, 0]], w[oe[:, 1]]
-                share_a = wa / np.maximum(wa + wb, 1e-300)
-                corr = ((ln[over] - cap[on]) / np.maximum(ln[over], 1e-300))[:, None] * d[over]
-                # a colour's edges share no vertex: every end moves once, at once
-                for rows, step, ok in ((oe[:, 0], corr * share_a[:, None], wa > 0),
-                                       (oe[:, 1], -corr * (1.0 - share_a)[:, None], wb > 0)):
-                    r = rows[ok]
-                    points[r] += self._not_inward(body, r, points[r], step[ok])
-            if not any_over:
+        active = np.arange(len(e))      # the edges that can be over: all, then those touching a moved vertex
+        w = None
+        for it in range(self.iterations):
+            ea = e[active]
+            d = points[ea[:, 1]] - points[ea[:, 0]]
+            ln = np.sqrt(np.einsum("ij,ij->i", d, d))
+            cand = ln > self.limit * self.len0[active]
+            new = active[cand & ~known[active]]
+            if len(new):
+                if normals is None:
+                    normals = self._vn(body)
+                if it == 0:
+                    # with the edges round them: the next passes' candidates, in one call
+                    new = self._with_neighbours(new)
+                    new = new[~known[new]]
+                cap[new] = self.allowed(body, new, normals)
+                known[new] = True
+            over = cand & (ln > cap[active])
+            if not over.any():
                 break
+            on = active[over]
+            limited[on] = True
+            if w is None:
+                w = self.inv_mass.copy()
+                if pushed is not None:
+                    w[np.asarray(pushed, dtype=bool)] /= HEAVY
+            ce = e[on]
+            wa, wb = w[ce[:, 0]], w[ce[:, 1]]
+            share_a = wa / np.maximum(wa + wb, 1e-300)
+            lo = ln[over]
+            c = ((lo - cap[on]) / np.maximum(lo, 1e-300))[:, None] * d[over]
+            ends = np.concatenate([ce[:, 0], ce[:, 1]])
+            moves = np.concatenate([c * share_a[:, None], -c * (1.0 - share_a)[:, None]])
+            count = np.bincount(ends, weights=np.concatenate([wa > 0, wb > 0]).astype(np.float64), minlength=n)
+            moved = np.flatnonzero(count > 0)
+            step = np.stack([np.bincount(ends, weights=moves[:, i], minlength=n)[moved] for i in range(3)], axis=1)
+            step /= count[moved, None]
+            points[moved] += self._not_inward(body, moved, points[moved], step)
+            active = self._touching(moved)
         self.stats["edges_limited"] += int(limited.sum())
         return points
+
+    def _touching(self, rows: np.ndarray) -> np.ndarray:
+        """The edges (indices) with an end in ``rows``."""
+        return np.unique(self._incidence[rows].indices)
+
+    def _with_neighbours(self, idx: np.ndarray) -> np.ndarray:
+        """Edges ``idx`` and every edge sharing a vertex with one of them."""
+        return np.union1d(idx, self._touching(np.unique(self.edges[idx])))

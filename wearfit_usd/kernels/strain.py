@@ -1,15 +1,15 @@
 """The strain limit's per-frame pass (:mod:`animate.strain_limit`), compiled.
 
-One loop over the item edges (in colour order) per Gauss-Seidel pass: an
-edge longer than ``limit`` x its rest length gets its allowed length
-(computed once per frame, from the principal stretches of the body
-triangles under its ends and the offset factor of its clearance, as
+One loop over the item edges per Jacobi pass: an edge longer than
+``limit`` x its rest length gets its allowed length (computed once per
+frame, from the principal stretches of the body triangles under its ends
+and the offset factor of its clearance, as
 :func:`dress.body_stretch.principal_stretches` and
 :func:`dress.body_stretch.offset_factor` compute them), and one over its
-allowed length moves its ends toward each other at once, each move cut
-where it would go into the body. The numpy twin is
-:meth:`animate.strain_limit.StrainLimit` itself (its ``compiled=False``
-path, a colour at a time); a test runs both.
+allowed length moves its ends toward each other; then every moved vertex
+takes the mean of its moves, cut where it would go into the body. The
+numpy twin is :meth:`animate.strain_limit.StrainLimit` itself (its
+``compiled=False`` path); a test runs both.
 """
 from __future__ import annotations
 
@@ -136,93 +136,89 @@ def _offset_factor(rest, body, normals, ei, feet, have_foot):
     return 1.0
 
 
-@jit(inline=True)
-def _move(rest, body, points, v, sx, sy, sz, margin):
-    """Move item vertex v by (sx, sy, sz), its part into the body cut to
-    what keeps it ``margin`` outside the skin under it (its rest closest
-    triangle on this body: the point at the same barycentrics, that
-    triangle's normal)."""
-    t = rest.foot_tri[v]
-    i, j, k = rest.faces[t, 0], rest.faces[t, 1], rest.faces[t, 2]
-    e1x, e1y, e1z = body[j, 0] - body[i, 0], body[j, 1] - body[i, 1], body[j, 2] - body[i, 2]
-    e2x, e2y, e2z = body[k, 0] - body[i, 0], body[k, 1] - body[i, 1], body[k, 2] - body[i, 2]
-    nx = e1y * e2z - e1z * e2y
-    ny = e1z * e2x - e1x * e2z
-    nz = e1x * e2y - e1y * e2x
-    nl = max(math.sqrt(nx * nx + ny * ny + nz * nz), 1e-300)
-    nx, ny, nz = nx / nl, ny / nl, nz / nl
-    px, py, pz = 0.0, 0.0, 0.0
-    for q in range(3):
-        bw = rest.foot_bary[v, q]
-        vq = rest.faces[t, q]
-        px += bw * body[vq, 0]
-        py += bw * body[vq, 1]
-        pz += bw * body[vq, 2]
-    clear = (points[v, 0] - px) * nx + (points[v, 1] - py) * ny + (points[v, 2] - pz) * nz
-    inward = -(sx * nx + sy * ny + sz * nz)
-    cut = max(inward - max(clear - margin, 0.0), 0.0)
-    points[v, 0] += sx + cut * nx
-    points[v, 1] += sy + cut * ny
-    points[v, 2] += sz + cut * nz
-
-
 @jit
 def strain_frame(rest, body, normals, points, w, limit, iterations, margin):
     """One frame's strain limit, in place on points (M, 3); w (M,) the
-    vertices' inverse masses (0: fixed). ``rest.edges`` in colour order (no
-    two edges of a colour share a vertex): Gauss-Seidel, each edge's
-    correction applied at once, equal to the numpy twin's per-colour
-    passes. Returns the number of edges it shortened."""
+    vertices' inverse masses (0: fixed). Returns the number of edges it
+    shortened."""
     n_e = rest.edges.shape[0]
     m = points.shape[0]
     cap = np.full(n_e, -1.0)
     exact = np.zeros(n_e, dtype=np.bool_)  # cap with the offset factor (else the skin's lower bound)
     limited = np.zeros(n_e, dtype=np.bool_)
-    # an edge found within its cap is skipped until one of its ends moves
-    # (versions only grow, so their sum changes whenever an end moved)
-    version = np.zeros(m, dtype=np.int64)
-    seen = np.full(n_e, -1, dtype=np.int64)
+    step = np.zeros((m, 3))
+    count = np.zeros(m)
+    moved = np.ones(m, dtype=np.bool_)  # edges with neither end moved last pass keep their length
     tri_hi = np.full(rest.faces.shape[0], -1.0)
     vhi = np.full(m, -1.0)
     feet = np.empty((m, 6))
     have_foot = np.zeros(m, dtype=np.bool_)
     for _ in range(iterations):
+        step[:] = 0.0
+        count[:] = 0.0
         any_over = False
         for ei in range(n_e):
             a, b = rest.edges[ei, 0], rest.edges[ei, 1]
-            key = version[a] + version[b]
-            if seen[ei] == key:
+            if not (moved[a] or moved[b]):
                 continue
             dx = points[b, 0] - points[a, 0]
             dy = points[b, 1] - points[a, 1]
             dz = points[b, 2] - points[a, 2]
             ln = math.sqrt(dx * dx + dy * dy + dz * dz)
             if not ln > limit * rest.len0[ei]:
-                seen[ei] = key
                 continue
             if cap[ei] < 0.0:
                 cap[ei] = _skin_cap(rest, body, limit, ei, tri_hi, vhi)
             if not ln > cap[ei]:
-                seen[ei] = key
                 continue
             if not exact[ei]:
                 cap[ei] *= _offset_factor(rest, body, normals, ei, feet, have_foot)
                 exact[ei] = True
                 if not ln > cap[ei]:
-                    seen[ei] = key
                     continue
             any_over = True
             limited[ei] = True
             wa, wb = w[a], w[b]
             sa = wa / max(wa + wb, 1e-300)
             f = (ln - cap[ei]) / max(ln, 1e-300)
+            step[a, 0] += f * dx * sa
+            step[a, 1] += f * dy * sa
+            step[a, 2] += f * dz * sa
+            step[b, 0] -= f * dx * (1.0 - sa)
+            step[b, 1] -= f * dy * (1.0 - sa)
+            step[b, 2] -= f * dz * (1.0 - sa)
             if wa > 0.0:
-                _move(rest, body, points, a, f * dx * sa, f * dy * sa, f * dz * sa, margin)
-                version[a] += 1
+                count[a] += 1.0
             if wb > 0.0:
-                sb = 1.0 - sa
-                _move(rest, body, points, b, -f * dx * sb, -f * dy * sb, -f * dz * sb, margin)
-                version[b] += 1
+                count[b] += 1.0
         if not any_over:
             break
+        for v in range(m):
+            moved[v] = count[v] > 0.0
+            if not moved[v]:
+                continue
+            sx, sy, sz = step[v, 0] / count[v], step[v, 1] / count[v], step[v, 2] / count[v]
+            # no move into the body: the skin under v is its rest closest triangle on this body
+            t = rest.foot_tri[v]
+            i, j, k = rest.faces[t, 0], rest.faces[t, 1], rest.faces[t, 2]
+            e1x, e1y, e1z = body[j, 0] - body[i, 0], body[j, 1] - body[i, 1], body[j, 2] - body[i, 2]
+            e2x, e2y, e2z = body[k, 0] - body[i, 0], body[k, 1] - body[i, 1], body[k, 2] - body[i, 2]
+            nx = e1y * e2z - e1z * e2y
+            ny = e1z * e2x - e1x * e2z
+            nz = e1x * e2y - e1y * e2x
+            nl = max(math.sqrt(nx * nx + ny * ny + nz * nz), 1e-300)
+            nx, ny, nz = nx / nl, ny / nl, nz / nl
+            px, py, pz = 0.0, 0.0, 0.0
+            for q in range(3):
+                bw = rest.foot_bary[v, q]
+                vq = rest.faces[t, q]
+                px += bw * body[vq, 0]
+                py += bw * body[vq, 1]
+                pz += bw * body[vq, 2]
+            clear = (points[v, 0] - px) * nx + (points[v, 1] - py) * ny + (points[v, 2] - pz) * nz
+            inward = -(sx * nx + sy * ny + sz * nz)
+            cut = max(inward - max(clear - margin, 0.0), 0.0)
+            points[v, 0] += sx + cut * nx
+            points[v, 1] += sy + cut * ny
+            points[v, 2] += sz + cut * nz
     return int(limited.sum())
