@@ -165,11 +165,12 @@ def hinge_band(share: np.ndarray, edges: np.ndarray, lengths: np.ndarray, width:
     ``clip(1/2 + s d / width, 0, 1)``, ``s`` = +1 on the piece's side
     (``share >= 1/2``) and -1 on the other; the two ends of a crossed edge
     longer than ``width`` get ``clip(1/2 + s d / max(width, d / 0.4))``,
-    0.1 and 0.9 at most, so that no edge joins the two pieces directly. A shoe then bends at the toe
-    over ``width`` of its upper and sole, not over one edge, so its edges
-    stretch no more than the skin they cover: bending by an angle ``a``
-    with the surface ``h`` from the joint's axis lengthens (or shortens)
-    the band by about ``a h``, i.e. by ``a h / width`` of its length.
+    0.1 and 0.9 at most, so that no edge joins the two pieces directly. A
+    shoe then bends at the toe over ``width`` of its upper and sole, not
+    over one edge, so its edges stretch no more than the skin they cover:
+    bending by an angle ``a`` with the surface ``h`` from the joint's axis
+    lengthens (or shortens) the band by about ``a h``, i.e. by
+    ``a h / width`` of its length.
 
     Parameters
     ----------
@@ -245,9 +246,9 @@ def articulated_weights(weights: np.ndarray, parents: np.ndarray, hinge: tuple |
         Where a child's share starts and ends its rise.
     band : ((E, 2) int array, (E,) array), optional
         The part's edges (indices into the rows of ``weights``) and their
-        lengths: each piece's share then rises over ``HINGE_BAND`` of the
-        part's surface (:func:`hinge_band`) instead of where the skin's
-        does.
+        lengths: the shares of j0's children (a shoe's toes) then rise over
+        ``HINGE_BAND`` of the part's surface (:func:`hinge_band`) instead
+        of where the skin's does; the parent's (the collar's) is kept.
 
     Returns
     -------
@@ -293,6 +294,13 @@ def articulated_pieces(weights: np.ndarray, min_size: int = 3) -> list:
             if int(np.sum(whole & (j == c))) >= min_size]
 
 
+def _renumbered(edges: np.ndarray, rows: np.ndarray, n: int) -> np.ndarray:
+    """``edges`` with both ends in ``rows`` (of ``n``), as positions in ``rows``."""
+    local = np.full(n, -1, dtype=np.int64)
+    local[rows] = np.arange(len(rows))
+    return local[edges[(local[edges] >= 0).all(axis=1)]]
+
+
 def group_band(mesh: tuple | None, gv: np.ndarray):
     """The edges of ``mesh`` ((M, 3) points, (E, 2) edges, both indexing
     the rows ``gv`` are among) with both ends in ``gv``, renumbered to
@@ -301,12 +309,9 @@ def group_band(mesh: tuple | None, gv: np.ndarray):
     if mesh is None:
         return None
     points, edges = mesh
-    edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
-    local = np.full(len(points), -1, dtype=np.int64)
-    local[gv] = np.arange(len(gv))
-    e = edges[(local[edges] >= 0).all(axis=1)]
-    lengths = np.linalg.norm(points[e[:, 1]] - points[e[:, 0]], axis=1)
-    return local[e], lengths
+    e = _renumbered(np.asarray(edges, dtype=np.int64).reshape(-1, 2), gv, len(points))
+    p = np.asarray(points, dtype=np.float64)[gv]
+    return e, np.linalg.norm(p[e[:, 1]] - p[e[:, 0]], axis=1)
 
 
 def item_mesh(items: list) -> tuple:
@@ -472,13 +477,6 @@ def skinned_items(result, target, suffix: str = "", max_influences: int = MAX_IN
         m.joint_indices, m.joint_weights = ji[sl], jw[sl]
         out.append(m)
     return out
-
-
-def _renumbered(edges: np.ndarray, rows: np.ndarray, n: int) -> np.ndarray:
-    """``edges`` with both ends in ``rows`` (of ``n``), as positions in ``rows``."""
-    local = np.full(n, -1, dtype=np.int64)
-    local[rows] = np.arange(len(rows))
-    return local[edges[(local[edges] >= 0).all(axis=1)]]
 
 
 def rigid_pieces(result, target) -> list:
