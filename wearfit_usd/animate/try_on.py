@@ -430,12 +430,13 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
         world(0)  # frame 0's block (and animation samples) even where frame 0 skips the skinning
         for f in progress(range(n_frames), total=n_frames, desc="animate", unit="frame"):
             ta = time.perf_counter()
-            body_f = body0 if f == 0 else body_skinner(skin_mats(f))
+            mats = skin_mats(f)
+            body_f = body0 if f == 0 else body_skinner(mats)
             tb = time.perf_counter()
             pts = evaluator(f, body_f)
             if rigid is not None:
                 # before the guard, which pushes their hinges' vertices
-                rigid_pts = rigid.skinner(skin_mats(f))
+                rigid_pts = rigid.skinner(mats)
                 pts[rigid.rows] = rigid_pts
             guarded = False
             if cloth is not None and f > 0:
@@ -477,7 +478,7 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
                 if measures is not None:
                     _record(rep, f, measures(body_f, pts))
                     if skin_copies is not None:
-                        _record(rep, None, skin_copies.rows(measures, body_f, skin_mats(f)))
+                        _record(rep, None, skin_copies.rows(measures, body_f, mats))
                 tm = time.perf_counter()
                 t_measure += tm - td
                 td = tm

@@ -12,6 +12,7 @@ its clearance (an offset surface over a skin that bends more grows more).
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from ..geometry.closest import VertexNormals
 
@@ -87,7 +88,6 @@ def local_triangles(body_points: np.ndarray, body_faces: np.ndarray, points: np.
     """(M, k + 1) the body triangles an item vertex's local stretch is taken
     over: its closest triangle ``foot_triangle`` (M,) and the ``k`` whose
     centroids are nearest to it, on body_points (N, 3)."""
-    from scipy.spatial import cKDTree
     kk = min(k, len(body_faces))
     _, near = cKDTree(np.asarray(body_points)[body_faces].mean(axis=1)).query(points, k=kk)
     near = np.asarray(near, dtype=np.int64).reshape(len(points), -1)

@@ -294,13 +294,6 @@ def articulated_pieces(weights: np.ndarray, min_size: int = 3) -> list:
             if int(np.sum(whole & (j == c))) >= min_size]
 
 
-def _renumbered(edges: np.ndarray, rows: np.ndarray, n: int) -> np.ndarray:
-    """``edges`` with both ends in ``rows`` (of ``n``), as positions in ``rows``."""
-    local = np.full(n, -1, dtype=np.int64)
-    local[rows] = np.arange(len(rows))
-    return local[edges[(local[edges] >= 0).all(axis=1)]]
-
-
 def group_band(mesh: tuple | None, gv: np.ndarray):
     """The edges of ``mesh`` ((M, 3) points, (E, 2) edges, both indexing
     the rows ``gv`` are among) with both ends in ``gv``, renumbered to
@@ -309,7 +302,10 @@ def group_band(mesh: tuple | None, gv: np.ndarray):
     if mesh is None:
         return None
     points, edges = mesh
-    e = _renumbered(np.asarray(edges, dtype=np.int64).reshape(-1, 2), gv, len(points))
+    edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
+    local = np.full(len(points), -1, dtype=np.int64)
+    local[gv] = np.arange(len(gv))
+    e = local[edges[(local[edges] >= 0).all(axis=1)]]
     p = np.asarray(points, dtype=np.float64)[gv]
     return e, np.linalg.norm(p[e[:, 1]] - p[e[:, 0]], axis=1)
 
@@ -483,9 +479,9 @@ def rigid_pieces(result, target) -> list:
     """The articulated rigid pieces of a dressing's rigid parts, per item.
 
     Each rigid group of ``result.plan`` (a shoe, a hat; released groups
-    too) is weighted as
-    :func:`skinned_items` weights it (:func:`rigid_group_weights` with the
-    target skeleton's parents) and split into its pieces
+    too) is weighted as :func:`skinned_items` weights it
+    (:func:`articulated_weights` with the target skeleton's parents and the
+    group's hinge band) and split into its pieces
     (:func:`articulated_pieces`: a shoe's sole and toe cap; a hat whole).
     ``result`` and ``target`` as for :func:`skinned_items`.
 
@@ -501,16 +497,16 @@ def rigid_pieces(result, target) -> list:
     slices = pl.item_slices()
     points, edges = item_mesh(result.items)
     out = [[] for _ in slices]
-    for gv, bv, bw in pl.rigid_groups + pl.released_groups:
+    for gv, _, _ in pl.rigid_groups + pl.released_groups:
         gv = np.asarray(gv, dtype=np.int64)
         if len(gv) == 0:
             continue
         owner = [i for i, sl in enumerate(slices) if sl.start <= gv.min() and gv.max() < sl.stop]
         if not owner:
             continue
-        dense = (coef[gv] @ body_w).toarray()
-        w = rigid_group_weights(dense, (np.arange(len(gv)), bv, bw), body_w, target.skeleton.parents,
-                                mesh=(points[gv], _renumbered(edges, gv, len(points))))
+        # rigid_group_weights' articulated case, on the group's rows alone
+        w = articulated_weights((coef[gv] @ body_w).toarray(), target.skeleton.parents,
+                                band=group_band((points, edges), gv))
         sl = slices[owner[0]]
         out[owner[0]] += [gv[p] - sl.start for p in articulated_pieces(w)]
     return out
