@@ -459,3 +459,60 @@ def test_push_carry_known_answers():
         np.testing.assert_allclose(out[v], 0.8 * 0.7 * s / k, atol=1e-12)
     with pytest.raises(ValueError, match="shift"):
         carry(np.zeros((3, 3)))
+
+
+def two_item_plan(faces, n):
+    """A plan of two copies of one sheet: item "skirt" (a skirt item of the
+    plan's regions) and item "hair" (not one)."""
+    e = mesh_edges(faces)
+    items = [SimpleNamespace(name="skirt"), SimpleNamespace(name="hair")]
+    return SimpleNamespace(mesh=SimpleNamespace(edges=np.concatenate([e, e + n])), items=items,
+                           regions=SimpleNamespace(skirt_items={"skirt"}, body=None),
+                           item_slices=lambda: [slice(0, n), slice(n, 2 * n)])
+
+
+def test_set_rest_applies_to_every_loose_item():
+    # hair hangs as well as a skirt: its hanging part rests as dressed on the
+    # bind pose too (the ponytail dressed in a walk's first pose had edges at
+    # twice their length, which the cloth then kept)
+    pts, faces = grid_sheet(9, 0.8)
+    n = len(pts)
+    both = np.concatenate([pts, pts + [0.0, 0.0, 2.0]])
+    w = np.tile(np.clip(pts[:, 0] / 0.4, 0.0, 1.0), 2)
+    bp, bf = FAR_BODY
+    cs = ClothSolver(two_item_plan(faces, n), bf, bp, both, weights=w)
+    before = cs.rest.copy()
+    cs.set_rest(both * 1.1)
+    pe = cs.particles[cs.edges]
+    hang = (w[pe] >= 0.5).all(axis=1)
+    for item in (pe[:, 0] < n, pe[:, 0] >= n):  # the skirt, the hair
+        assert (hang & item).any()
+        np.testing.assert_allclose(cs.rest[hang & item], 1.1 * before[hang & item])
+        np.testing.assert_array_equal(cs.rest[~hang & item], before[~hang & item])
+
+
+def test_stretched_first_dress_hangs_at_its_rest_lengths():
+    # a sheet pinned along x = 0 dressed stretched 1.5x along x (a posed
+    # first frame's dress), its rest state unstretched: it settles at the
+    # rest lengths, not at the dress's, though its targets stay stretched
+    pts, faces = grid_sheet(9, 0.4)
+    pts = pts[:, [1, 0, 2]] * np.array([1.0, -1.0, 1.0])  # hanging down from y = 0
+    stretched = pts * np.array([1.0, 1.5, 1.0])
+    w = np.clip(-pts[:, 1] / 0.1, 0.0, 1.0)
+    bp, bf = FAR_BODY
+    plan = two_item_plan(faces, len(pts))
+    plan.items, plan.item_slices = plan.items[1:], lambda: [slice(0, len(pts))]
+    plan.mesh.edges = mesh_edges(faces)
+    e = mesh_edges(faces)
+    rest = np.linalg.norm(pts[e[:, 0]] - pts[e[:, 1]], axis=1)
+    out = {}
+    for relaxed in (False, True):
+        cs = ClothSolver(plan, bf, bp, stretched, weights=w)
+        if relaxed:
+            cs.set_rest(pts)
+        for _ in range(90):
+            x = cs.step(bp, stretched, 1.0 / 30.0)
+        out[relaxed] = np.linalg.norm(x[e[:, 0]] - x[e[:, 1]], axis=1) / rest
+    hang = (w[e] >= 0.5).all(axis=1)   # (the part near the pins keeps the dress's lengths by design)
+    assert np.percentile(out[False][hang], 99) > 1.3          # the dress's stretch kept
+    assert np.percentile(out[True][hang], 99) < 1.1           # the rest lengths
