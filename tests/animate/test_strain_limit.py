@@ -123,3 +123,29 @@ def test_numba_kernel_matches_numpy_twin():
         assert lim.stats["edges_limited"] > 0
     assert not np.allclose(out[False], p)
     np.testing.assert_allclose(out[True], out[False], atol=1e-12)
+
+
+def _mesh(name, pts, e):
+    from wearfit_usd.model import Mesh
+    tri = np.zeros((0, 3), dtype=np.int64)
+    return Mesh(name, pts, tri, np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
+
+
+def test_relax_first_dress_shortens_a_stretched_first_dress():
+    from wearfit_usd.animate.try_on import relax_first_dress
+    body, faces = plane()
+    q, e = sheet()
+    n = len(q)
+    stretched = q * np.array([2.0, 1.0, 1.0])          # the first pose's dress: 2x along x
+    items = [_mesh("loose", stretched.copy(), e), _mesh("rigid", stretched.copy(), e)]
+    rest = [_mesh("loose", q, e), _mesh("rigid", q, e)]
+    rigid = np.r_[np.zeros(n, dtype=bool), np.ones(n, dtype=bool)]
+    edges = np.concatenate([e, e + n])
+    assert ratios(stretched, q, e).max() > 1.9
+    out = relax_first_dress(items, rest, rigid, edges, faces, body, body, passes=64)
+    assert [m.name for m in out] == ["loose", "rigid"]
+    assert ratios(out[0].points, q, e).max() < 1.1 + 0.01   # the limit (the body itself unstretched)
+    np.testing.assert_array_equal(out[1].points, stretched)  # rigid parts are not moved
+    np.testing.assert_array_equal(items[0].points, stretched)  # the input is left as it was
+    # dresses that do not match point for point: nothing to relax
+    assert relax_first_dress(items, rest[:1], rigid, edges, faces, body, body) is items
