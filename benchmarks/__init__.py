@@ -18,11 +18,11 @@ DEFAULT_OUT = REPO / "benchmarks" / "results"
 STAGES = ["fit", "dress", "animate", "skinned", "motion", "rigs", "render", "fuzz", "batch"]
 
 
-def clip_end(motion, frames: int, fps: float = 30.0) -> int:
+def clip_end(motion, frames: int, fps: float = 30.0, start: int = 1) -> int:
     """``end`` (exclusive clip frame) of the first ``frames`` output frames at
-    ``fps`` from clip frame 1, whatever the clip's rate; the clip's own end
+    ``fps`` from clip frame ``start``, whatever the clip's rate; the clip's own end
     when it is shorter (cmu_09_11_run: 166 frames at 120 fps)."""
-    return min(1 + int(round(frames * motion.fps / fps)), motion.n_frames)
+    return min(start + int(round(frames * motion.fps / fps)), motion.n_frames)
 
 
 def _columns(rows: list[dict]) -> list[str]:

@@ -12,7 +12,10 @@ item and mode: the worst over every clip and target.
 Full: every CMU clip in ../shared/data/bvh on the dev references
 (ref_female_longskirt, ref_female, ref_male) and every body_*.usdc of the
 matching sex, whole clips at 30 fps. Quick: three pairs, two clips, the
-first 60 frames at 30 fps. Every shot of a reference with a loose garment
+first 60 frames at 30 fps. Each clip starts where `wearfit animate` starts it
+by default (``--start auto``: past the frames that blend from a converter's
+T-pose, clip frame 4 of cmudaz_02_02_walk; 1 on the CMU clips with a T-pose
+frame 0, 0 on cmu3dsmax_131_01_start_walk_stop). Every shot of a reference with a loose garment
 (the long skirt) is rendered with `wearfit render` into
 ``<out>/motion_render/<shot>/`` and its contact sheet copied to
 ``<out>/motion_<shot>.png`` (the report embeds it).
@@ -73,11 +76,16 @@ def run_shot(clip: str, ref_name: str, body_name: str, mode: str, out_dir: Path,
     from wearfit_usd.io.usd import read_character
     ref = read_character(USD_DIR / ref_name)
     tgt = read_character(USD_DIR / body_name)
+    from wearfit_usd.motion.clip_start import leading_rest_frames
     motion = read_bvh(BVH_DIR / clip)
-    end = None if frames is None else clip_end(motion, frames)
+    # where `wearfit animate` starts the clip by default (--start auto): a
+    # shot from clip frame 1 of the Daz walk jumped from a T-pose blend to
+    # walking in one frame (its worst frames were frame 2 on every item)
+    start = leading_rest_frames(motion)
+    end = None if frames is None else clip_end(motion, frames, start=start)
     shot = out_dir / f"motion_{Path(clip).stem}_{Path(ref_name).stem}_{Path(body_name).stem}_{mode}.usdc"
     t0 = time.perf_counter()
-    rep = animate(ref, tgt, motion, shot, AnimateOptions(start=1, end=end, fps=30, mode=mode,
+    rep = animate(ref, tgt, motion, shot, AnimateOptions(start=start, end=end, fps=30, mode=mode,
                                                          measure_every=measure_every))
     return shot, rep, time.perf_counter() - t0
 
