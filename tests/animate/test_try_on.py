@@ -439,8 +439,8 @@ def test_the_weld_s_groups_are_strain_limited_again(tmp_path, ref_female, monkey
     """The weld of sub-millimetre edges runs after the strain limit; its
     clamp moved ``ponytail01``'s groups along their other edges and
     stretched them again (a 1.8 mm edge at 3.5 mm in the CMU walk's frame 4).
-    A second round of the limit and the weld: the first 16 frames' stretch
-    max 1.71 -> 1.37 (measured; without the round it must stay as it was)."""
+    Two more rounds of the limit and the weld: the first 16 frames' stretch
+    max 1.71 -> 1.25 (measured; without them it must stay as it was)."""
     import wearfit_usd.animate.try_on as try_on
     target = read_character(USD_DIR / "body_female_thin.usdc")
     clip = read_bvh(BVH_DIR / "cmu_07_01_walk.bvh")
@@ -451,5 +451,5 @@ def test_the_weld_s_groups_are_strain_limited_again(tmp_path, ref_female, monkey
                       AnimateOptions(start=1, end=1 + int(round(16 * clip.fps / 30)), fps=30, measure_every=2))
         figs[passes] = {k: v["value"] for k, v in rep.motion_worst["ponytail01"].items()}
     new, old = figs[try_on.WELD_ROUND_PASSES], figs[0]
-    assert new["stretch_max"] <= 1.5 < old["stretch_max"], figs
+    assert new["stretch_max"] <= 1.35 < 1.5 < old["stretch_max"], figs
     assert new["stretch_p99"] <= old["stretch_p99"] + 1e-9 and new["new_pen_pct"] <= old["new_pen_pct"] + 0.1, figs

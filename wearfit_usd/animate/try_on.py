@@ -54,7 +54,7 @@ from .measures import MEASURES, MotionMeasures, worst_frames
 from .penetration_guard import PenetrationGuard
 from .short_edges import ShortEdgeWeld
 from .skin_transfer import transfer_weights
-from .strain_limit import WELD_ROUND_PASSES, StrainLimit
+from .strain_limit import WELD_ROUND_PASSES, WELD_ROUNDS, StrainLimit
 
 
 @dataclass
@@ -489,8 +489,8 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
                 strain(body_f, pts, pushed)
             if weld is not None:
                 weld(pts)
-                if strain is not None and WELD_ROUND_PASSES:
-                    # the weld re-stretches its groups' other edges: a second, shorter round
+                # the weld re-stretches its groups' other edges: more, shorter rounds
+                for _ in range(WELD_ROUNDS if strain is not None and WELD_ROUND_PASSES else 0):
                     strain(body_f, pts, pushed, iterations=WELD_ROUND_PASSES)
                     weld(pts)
             check_finite_points(pts, f, rt, motion.path)
