@@ -74,9 +74,9 @@ def run_shot(clip: str, ref_name: str, body_name: str, mode: str, out_dir: Path,
     from wearfit_usd.animate.try_on import AnimateOptions, animate
     from wearfit_usd.io.bvh import read_bvh
     from wearfit_usd.io.usd import read_character
+    from wearfit_usd.motion.clip_start import leading_rest_frames
     ref = read_character(USD_DIR / ref_name)
     tgt = read_character(USD_DIR / body_name)
-    from wearfit_usd.motion.clip_start import leading_rest_frames
     motion = read_bvh(BVH_DIR / clip)
     # where `wearfit animate` starts the clip by default (--start auto): a
     # shot from clip frame 1 of the Daz walk jumped from a T-pose blend to

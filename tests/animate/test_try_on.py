@@ -408,6 +408,23 @@ def test_a_shoes_collar_is_pushed_out_of_the_ankle(tmp_path, ref_male, heavy_mal
     assert s["new_pen_pct"] <= 1.0 and s["stretch_max"] <= 1.5 and s["rigid_mm"] <= 2.0, s
 
 
+def _walk_16_with_and_without(tmp_path, reference, monkeypatch, knob: str, items: tuple) -> tuple[dict, dict]:
+    """``reference`` on body_female_thin, the CMU walk's first 16 frames at
+    30 fps, measured every second frame, with ``try_on``'s constant ``knob``
+    at 0 and at its value: the worst-frame figures of ``items``, (with, without)."""
+    import wearfit_usd.animate.try_on as try_on
+    target = read_character(USD_DIR / "body_female_thin.usdc")
+    clip = read_bvh(BVH_DIR / "cmu_07_01_walk.bvh")
+    figs = {}
+    for value in (0, getattr(try_on, knob)):
+        monkeypatch.setattr(try_on, knob, value)
+        rep = animate(reference, target, clip, tmp_path / f"walk_{knob}_{value}.usdc",
+                      AnimateOptions(start=1, end=1 + int(round(16 * clip.fps / 30)), fps=30, measure_every=2))
+        assert rep.dress_pose == "first" and rep.frames == 16
+        figs[value] = {it: {k: v["value"] for k, v in rep.motion_worst[it].items()} for it in items}
+    return figs[value], figs[0]
+
+
 def test_the_first_pose_s_dress_is_relaxed_before_the_binding(tmp_path, ref_female, monkeypatch):
     """Dressed in the CMU walk's first pose, ``ponytail01`` on
     body_female_thin came out with 18 mm edges at 35 mm (bound to the head
@@ -416,20 +433,12 @@ def test_the_first_pose_s_dress_is_relaxed_before_the_binding(tmp_path, ref_fema
     (``relax_first_dress``), the first 16 frames: ponytail stretch p99
     1.16 -> 1.11, the suit's stretch max 1.26 -> 1.14 (measured; the same
     shot without it must stay as it was, so the option is real). Without
-    the weld's second round (it shortens some of the same edges)."""
+    the weld's further rounds (they shorten some of the same edges)."""
     import wearfit_usd.animate.try_on as try_on
     monkeypatch.setattr(try_on, "WELD_ROUND_PASSES", 0)
-    target = read_character(USD_DIR / "body_female_thin.usdc")
-    clip = read_bvh(BVH_DIR / "cmu_07_01_walk.bvh")
-    figs = {}
-    for passes in (0, try_on.FIRST_DRESS_PASSES):
-        monkeypatch.setattr(try_on, "FIRST_DRESS_PASSES", passes)
-        rep = animate(ref_female, target, clip, tmp_path / f"walk{passes}.usdc",
-                      AnimateOptions(start=1, end=1 + int(round(16 * clip.fps / 30)), fps=30, measure_every=2))
-        assert rep.dress_pose == "first" and rep.frames == 16
-        figs[passes] = {it: {k: v["value"] for k, v in rep.motion_worst[it].items()}
-                        for it in ("ponytail01", "female_casualsuit01")}
-    new, old = figs[try_on.FIRST_DRESS_PASSES], figs[0]
+    new, old = _walk_16_with_and_without(tmp_path, ref_female, monkeypatch, "FIRST_DRESS_PASSES",
+                                         ("ponytail01", "female_casualsuit01"))
+    figs = {"with": new, "without": old}
     assert new["ponytail01"]["stretch_p99"] <= 1.13 < old["ponytail01"]["stretch_p99"], figs
     assert new["female_casualsuit01"]["stretch_max"] <= 1.2 < old["female_casualsuit01"]["stretch_max"], figs
     assert new["female_casualsuit01"]["new_pen_pct"] <= 1.5, figs
@@ -441,15 +450,8 @@ def test_the_weld_s_groups_are_strain_limited_again(tmp_path, ref_female, monkey
     stretched them again (a 1.8 mm edge at 3.5 mm in the CMU walk's frame 4).
     Two more rounds of the limit and the weld: the first 16 frames' stretch
     max 1.71 -> 1.25 (measured; without them it must stay as it was)."""
-    import wearfit_usd.animate.try_on as try_on
-    target = read_character(USD_DIR / "body_female_thin.usdc")
-    clip = read_bvh(BVH_DIR / "cmu_07_01_walk.bvh")
-    figs = {}
-    for passes in (0, try_on.WELD_ROUND_PASSES):
-        monkeypatch.setattr(try_on, "WELD_ROUND_PASSES", passes)
-        rep = animate(ref_female, target, clip, tmp_path / f"walk{passes}.usdc",
-                      AnimateOptions(start=1, end=1 + int(round(16 * clip.fps / 30)), fps=30, measure_every=2))
-        figs[passes] = {k: v["value"] for k, v in rep.motion_worst["ponytail01"].items()}
-    new, old = figs[try_on.WELD_ROUND_PASSES], figs[0]
+    new, old = _walk_16_with_and_without(tmp_path, ref_female, monkeypatch, "WELD_ROUND_PASSES", ("ponytail01",))
+    new, old = new["ponytail01"], old["ponytail01"]
+    figs = {"with": new, "without": old}
     assert new["stretch_max"] <= 1.35 < 1.5 < old["stretch_max"], figs
     assert new["stretch_p99"] <= old["stretch_p99"] + 1e-9 and new["new_pen_pct"] <= old["new_pen_pct"] + 0.1, figs

@@ -489,10 +489,11 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
                 strain(body_f, pts, pushed)
             if weld is not None:
                 weld(pts)
-                # the weld re-stretches its groups' other edges: more, shorter rounds
-                for _ in range(WELD_ROUNDS if strain is not None and WELD_ROUND_PASSES else 0):
-                    strain(body_f, pts, pushed, iterations=WELD_ROUND_PASSES)
-                    weld(pts)
+                if strain is not None and WELD_ROUND_PASSES:
+                    # the weld re-stretches its groups' other edges: more, shorter rounds
+                    for _ in range(WELD_ROUNDS):
+                        strain(body_f, pts, pushed, iterations=WELD_ROUND_PASSES)
+                        weld(pts)
             check_finite_points(pts, f, rt, motion.path)
             td = time.perf_counter()
             t_pen += td - tc
