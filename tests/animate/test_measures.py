@@ -115,6 +115,67 @@ def test_item_far_from_the_body_has_no_separation_and_no_coverage():
     assert row["separation_p95_mm"] is None and row["coverage_loss_pct"] is None and row["rigid_mm"] is None
 
 
+# -- a fold: another part of the body over the sheet ---------------------------
+def box(x0, x1, y0, y1, z0, z1):
+    """A closed box (outward-facing triangles, edges <= 1 cm like the plane's)."""
+    import trimesh
+    m = trimesh.creation.box(bounds=[[x0, y0, z0], [x1, y1, z1]])
+    v, f = trimesh.remesh.subdivide_to_size(m.vertices, m.faces, max_edge=0.01)
+    return np.asarray(v, dtype=np.float64), np.asarray(f, dtype=np.int64)
+
+
+def plane_and_box(frame_box):
+    """The plane with a box as another part of the same body, 1.2 m to the
+    side in the static dress: (faces, static points, frame points)."""
+    bp, bf = BODY_PLANE
+    p1, f1 = box(*frame_box)
+    faces = np.concatenate([bf, f1 + len(bp)])
+    return faces, np.concatenate([bp, p1 + [1.2, 0.0, 0.0]]), np.concatenate([bp, p1])
+
+
+IN_BOX = (-0.1045, 0.0045, -0.3, 0.3)        # over 11 of the sheet's 41 columns, across the sheet
+
+
+def test_a_part_of_the_body_pressed_over_the_sheet_is_a_fold_not_loss_or_penetration():
+    """A box (an arm) comes down over the plane (the torso) and the sheet
+    between them: the sheet's vertices inside the box are not new
+    penetrations, the plane's vertices inside the box not coverage loss,
+    both reported as folded; the same box hovering 2 cm over the sheet is
+    no fold."""
+    sp_, sf = SHEET
+    faces, body0, body1 = plane_and_box((*IN_BOX, -0.02, 0.008))
+    mm = MotionMeasures(faces, body0, [("sheet", sp_, sf)])
+    inside = (sp_[:, 0] > IN_BOX[0]) & (sp_[:, 0] < IN_BOX[1])
+    assert inside.sum() == 11 * 21
+    row = mm(body1, sp_)[0]                      # the sheet stays, 3 mm inside the box's top
+    assert row["new_pen_pct"] == 0.0
+    assert row["pen_folded_pct"] == pytest.approx(100.0 * inside.mean())
+    assert row["coverage_loss_pct"] == 0.0       # the sheet still meets every ray
+    # the sheet torn away under the box: the plane inside the box is folded, the rest of the tear lost
+    torn = sp_.copy()
+    torn[inside, 2] += 0.3
+    row = mm(body1, torn)[0]
+    pv = body0[mm.covered[0]]
+    in_box = (pv[:, 0] > IN_BOX[0]) & (pv[:, 0] < IN_BOX[1])
+    assert in_box.sum() == 10 * 20
+    raw = mm.coverage_loss(0, body1, mm.normals(body1), torn, folds=False)
+    assert row["coverage_folded_pct"] == pytest.approx(100.0 * in_box.mean())
+    assert row["coverage_loss_pct"] == pytest.approx(raw - row["coverage_folded_pct"])
+    assert row["coverage_loss_pct"] > 0.0        # the torn triangles' edges outside the box
+    # the box 2 cm over the plane (12 mm beyond the sheet's 5 mm and the 5 mm margin): no fold
+    faces, body0, body2 = plane_and_box((*IN_BOX, 0.02, 0.06))
+    mm = MotionMeasures(faces, body0, [("sheet", sp_, sf)])
+    row = mm(body2, torn)[0]
+    assert row["coverage_folded_pct"] == 0.0
+    assert row["coverage_loss_pct"] == pytest.approx(mm.coverage_loss(0, body2, mm.normals(body2), torn,
+                                                                      folds=False))
+    assert row["coverage_loss_pct"] > 100.0 * in_box.mean()
+    sunk = sp_.copy()
+    sunk[inside, 2] = 0.03                       # pushed up into the hovering box
+    row = mm(body2, sunk)[0]
+    assert row["pen_folded_pct"] == 0.0 and row["new_pen_pct"] == pytest.approx(100.0 * inside.mean())
+
+
 # -- a sleeve on a limb ---------------------------------------------------------
 LIMB = tube(0.05, 0.0, 0.6, rings=61, caps=True)                  # 1 cm rings
 SLEEVE = tube(0.055, 0.205, 0.395, rings=20)                      # ring heights off the limb's

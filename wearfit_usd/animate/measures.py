@@ -32,7 +32,13 @@ frame. Per item and per frame:
   hit is on a hanging part, the ray in the frame reaches ``hanging_reach``
   (50 cm): a skirt swinging 10 cm off the back leg still covers it (the
   skin is not seen from outside along its normal), a leg through the skirt
-  or a tear does not.
+  or a tear does not. A body vertex *in a fold* is not counted as lost
+  (``coverage_folded_pct`` reports them): its ray in this frame leaves
+  another part of the body (the vertex lies inside it) or meets the body
+  itself no farther than the static hit plus ``fold_margin``. The body then
+  holds the place the item held (an arm down against the torso, the thighs
+  together): the vertex cannot be seen, and no item can lie there without
+  entering the body.
 - **rigid parts** (``rigid_mm``): the largest distance of a vertex of a rigid
   group (each articulated piece: :func:`dress.item_weights.rigid_pieces`
   splits the plan's rigid groups, a shoe per foot, into the pieces its
@@ -42,7 +48,12 @@ frame. Per item and per frame:
   its points in this frame. None for items without rigid groups.
 - **new penetrations** (``new_pen_pct``): item vertices outside the body (by
   more than ``margin``) in the static dress and inside it by more than
-  ``margin`` now, percent of the former.
+  ``margin`` now, percent of the former. A vertex over a fold is not counted
+  (``pen_folded_pct`` reports them): its static foot point on the body (the
+  closest point, carried by its triangle into this frame) is in a fold as
+  above, its ray meeting the body within the vertex's static clearance plus
+  ``fold_margin``: the item is pinched between two parts of the body and
+  lies inside one of them whatever it does.
 - **through another item** (``through_pct``): of the item's vertices that lie
   under another item in the static dress (a vertex of another item within
   ``layer_reach`` that is at least ``layer_gap`` farther from the skin), the
@@ -67,7 +78,7 @@ from ..geometry.mesh import edges, similarity_fit
 from ..geometry.rays import cast_rays, ray_triangle
 
 MEASURES = ("stretch_p99", "stretch_max", "separation_p95_mm", "separation_max_mm", "coverage_loss_pct",
-            "rigid_mm", "new_pen_pct", "through_pct")
+            "rigid_mm", "new_pen_pct", "through_pct", "coverage_folded_pct", "pen_folded_pct")
 
 
 @dataclass(frozen=True)
@@ -130,12 +141,15 @@ class MotionMeasures:
     layer_reach, layer_gap : metres: an item vertex is under a vertex of
         another item this near it and at least this much farther from the
         skin in the static dress (``through_pct``).
+    fold_margin : metres beyond the static hit (coverage) or clearance
+        (penetrations) within which the body meeting itself is a fold.
     """
 
     def __init__(self, body_faces: np.ndarray, body_points: np.ndarray, items: list,
                  rigid_groups: list | None = None, reach: float = 0.08, inset: float = 0.005,
                  contact: float = 0.01, margin: float = 0.001, k: int = 5, hanging: np.ndarray | None = None,
-                 hanging_reach: float = 0.5, layer_reach: float = 0.02, layer_gap: float = 0.002):
+                 hanging_reach: float = 0.5, layer_reach: float = 0.02, layer_gap: float = 0.002,
+                 fold_margin: float = 0.005):
         self.faces = np.ascontiguousarray(body_faces, dtype=np.int64)
         self.body0 = np.ascontiguousarray(body_points, dtype=np.float64)
         self.names = [n for n, _, _ in items]
@@ -161,6 +175,7 @@ class MotionMeasures:
         self.hanging = (np.zeros(len(self.items0), dtype=bool) if hanging is None
                         else np.asarray(hanging, dtype=bool).reshape(len(self.items0)))
         self.hanging_reach = float(hanging_reach)
+        self.fold_margin = float(fold_margin)
         self.contact_mask = (self.clearance0 < self.contact) & ~self.hanging
         self.outside0 = self.clearance0 > -self.margin
         self.under, self.over = self._layers(float(layer_reach), float(layer_gap))
@@ -174,13 +189,16 @@ class MotionMeasures:
             ring = (inc @ inc.T).tocsr()
             ring.sort_indices()
             self.rings.append(ring)
-        self.covered, self.cover_tri = [], []
+        self.covered, self.cover_tri, self.cover_t = [], [], []
         for i in range(len(items)):
             sl = self._slice(i)
             hit = cast_rays(self.body0, n0, self.items0[sl], self.item_faces[i], -self.inset, self.reach)
             v = np.flatnonzero(hit >= 0)
             self.covered.append(v)
             self.cover_tri.append(hit[v])
+            tri = self.items0[sl][self.item_faces[i][hit[v]]]
+            self.cover_t.append(ray_triangle(self.body0[v], n0[v], tri[:, 0], tri[:, 1], tri[:, 2],
+                                             -self.inset, self.reach)[1])
         # per item: the frame's reach of each covered body vertex's ray
         self.cover_reach = [np.where(self.hanging[self._slice(i)][self.item_faces[i][t]].any(axis=1),
                                      max(self.hanging_reach, self.reach), self.reach)
@@ -205,17 +223,38 @@ class MotionMeasures:
         under = np.flatnonzero(has)
         return under.astype(np.int64), safe[under, first[under]].astype(np.int64)
 
+    def _folded(self, body_points: np.ndarray, origins: np.ndarray, dirs: np.ndarray,
+                depth: np.ndarray) -> np.ndarray:
+        """(P,) bool: the ray from each origin (on the body) along its unit
+        dir (P, 3) leaves the body first (the origin lies inside another
+        part of it) or enters it within ``depth`` (P,) metres: a fold."""
+        out = np.zeros(len(origins), dtype=bool)
+        if len(origins) == 0:
+            return out
+        eps = 1e-3  # off the origin's own triangles
+        hit = cast_rays(origins, dirs, body_points, self.faces, eps, self.reach)
+        ok = np.flatnonzero(hit >= 0)
+        if len(ok):
+            tri = body_points[self.faces[hit[ok]]]
+            _, t = ray_triangle(origins[ok], dirs[ok], tri[:, 0], tri[:, 1], tri[:, 2], eps, self.reach)
+            # the body's triangles face out: a ray leaving through one started inside
+            leaves = np.einsum("ij,ij->i", np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), dirs[ok]) > 0
+            out[ok] = leaves | (t <= depth[ok])
+        return out
+
     def _slice(self, i: int) -> slice:
         return slice(int(self.offsets[i]), int(self.offsets[i + 1]))
 
     def coverage_loss(self, i: int, body_points: np.ndarray, body_normals: np.ndarray,
-                      item_points: np.ndarray) -> float | None:
+                      item_points: np.ndarray, folds: bool = True):
         """Percent of item i's statically covered body vertices not covered
         now; body_points/body_normals (N, 3) (unit normals), item_points
-        (M_i, 3) this item's points. None if it covers nothing."""
+        (M_i, 3) this item's points. None if it covers nothing. With
+        ``folds`` (the default) returns (loss, folded): the vertices in a
+        fold (see the module docstring) are counted in ``folded``, not lost."""
         v = self.covered[i]
         if len(v) == 0:
-            return None
+            return (None, None) if folds else None
         f = self.item_faces[i]
         o, d = body_points[v], body_normals[v]
         reach = self.cover_reach[i]
@@ -247,7 +286,11 @@ class MotionMeasures:
                 tc = item_points[f[again[again >= 0]]]
                 h, t = ray_triangle(o[m], d[m], tc[:, 0], tc[:, 1], tc[:, 2], -self.inset, r)
                 hit[m] = h & (t <= reach[m])
-        return 100.0 * float(np.sum(~hit)) / len(v)
+        if not folds:
+            return 100.0 * float(np.sum(~hit)) / len(v)
+        miss = np.flatnonzero(~hit)
+        fold = self._folded(body_points, o[miss], d[miss], np.maximum(self.cover_t[i][miss], 0.0) + self.fold_margin)
+        return 100.0 * float(np.sum(~fold)) / len(v), 100.0 * float(np.sum(fold)) / len(v)
 
     def __call__(self, body_points: np.ndarray, item_points: np.ndarray) -> list[dict]:
         """Per-item figures of one frame: body_points (N, 3) and the items
@@ -280,7 +323,7 @@ class MotionMeasures:
                 row["separation_max_mm"] = float(sep.max())
             else:
                 row["separation_p95_mm"] = row["separation_max_mm"] = None
-            row["coverage_loss_pct"] = self.coverage_loss(i, body, normals, pts[sl])
+            row["coverage_loss_pct"], row["coverage_folded_pct"] = self.coverage_loss(i, body, normals, pts[sl])
             groups = self.rigid_groups[i]
             if groups:
                 p0, p1 = self.items0[sl], pts[sl]
@@ -292,8 +335,16 @@ class MotionMeasures:
             else:
                 row["rigid_mm"] = None
             out0 = self.outside0[sl]
-            row["new_pen_pct"] = (100.0 * float(np.sum(out0 & (dist[sl] < -self.margin))) / int(out0.sum())
-                                  if out0.any() else 0.0)
+            new = np.flatnonzero(out0 & (dist[sl] < -self.margin)) + sl.start
+            # over a fold: the static foot point, carried by its triangle, and its normal
+            tri = self.faces[self.foot_tri[new]]
+            foot = np.einsum("pk,pkd->pd", self.foot_bary[new], body[tri])
+            fn = np.einsum("pk,pkd->pd", self.foot_bary[new], normals[tri])
+            fn /= np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-12)
+            fold = self._folded(body, foot, fn, np.maximum(self.clearance0[new], 0.0) + self.fold_margin)
+            n_out = int(out0.sum())
+            row["new_pen_pct"] = 100.0 * float(np.sum(~fold)) / n_out if n_out else 0.0
+            row["pen_folded_pct"] = 100.0 * float(np.sum(fold)) / n_out if n_out else 0.0
             mine = (self.under >= sl.start) & (self.under < sl.stop)
             if mine.any():
                 u, o = self.under[mine], self.over[mine]
