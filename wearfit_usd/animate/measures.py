@@ -46,9 +46,10 @@ frame. Per item and per frame:
   between them) from the best similarity transform
   (:func:`geometry.mesh.similarity_fit`) of the group's static points onto
   its points in this frame. None for items without rigid groups.
-- **new penetrations** (``new_pen_pct``): item vertices outside the body (by
-  more than ``margin``) in the static dress and inside it by more than
-  ``margin`` now, percent of the former. A vertex over a fold is not counted
+- **new penetrations** (``new_pen_pct``): item vertices outside the body in
+  the static dress (clearance > 0, as the dressing's measure,
+  :func:`dress.metrics.clearance_change`, counts them) and inside it by
+  more than ``margin`` now, percent of the former. A vertex over a fold is not counted
   (``pen_folded_pct`` reports them): its static foot point on the body (the
   closest point, carried by its triangle into this frame) is in a fold as
   above, its ray meeting the body within the vertex's static clearance plus
@@ -177,7 +178,7 @@ class MotionMeasures:
         self.hanging_reach = float(hanging_reach)
         self.fold_margin = float(fold_margin)
         self.contact_mask = (self.clearance0 < self.contact) & ~self.hanging
-        self.outside0 = self.clearance0 > -self.margin
+        self.outside0 = self.clearance0 > 0.0
         self.under, self.over = self._layers(float(layer_reach), float(layer_gap))
         # coverage: the body vertices each item covers statically, and the hit triangle
         n0 = self.normals(self.body0)
