@@ -38,6 +38,7 @@ from ..dress.plan import DressPlan
 from ..dress.plan import plan as plan_dress
 from ..errors import NonFiniteError, USDInputError
 from ..fit.body_fit import fit_character
+from ..geometry.closest import SurfaceQuery
 from ..geometry.mesh import edge_length_percentile, same_topology
 from ..io.usd_carry import CarryPlan
 from ..io.usd_shot import ShotWriter
@@ -360,13 +361,20 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
     if rigid is not None:
         frame0_items = all_base.copy()
         frame0_items[rigid.rows] = rigid.skinner(skin_mats(0))
+    # vertices outside the body in the bind pose's dress are guarded even
+    # where the first pose's dress starts them inside it
+    also = None
+    if bind_dressed is not None and opt.mode == "bind":
+        rest_pts = np.concatenate([m.points for m in bind_dressed.items])
+        if rest_pts.shape == all_base.shape:
+            also = SurfaceQuery(body.faces, body.points).signed_distance(rest_pts) > 0.0
     if cloth is None or opt.measure_every:
         # it pushes (and spreads its pushes over the items) in bind mode when
         # no other guard does; else it only counts penetrations
         pushes = opt.mode == "bind" and cloth is None and rigid is None
         guard = PenetrationGuard(body.faces, base_body, frame0_items, margin=opt.penetration_margin,
                                  item_neighbours=frame_plan.mesh.neighbours if pushes else None,
-                                 max_clearance=GUARD_MAX_CLEARANCE)
+                                 max_clearance=GUARD_MAX_CLEARANCE, also=also if pushes else None)
     if cloth is not None or rigid is not None:
         # the cloth keeps its own distance from the body: the guard would pull
         # it back to its frame-0 clearance; "new penetration" still counts it.
@@ -384,7 +392,8 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
         nb = frame_plan.mesh.neighbours.tocsr()
         push_guard = PenetrationGuard(body.faces, base_body, all_base[pushed_rows], margin=opt.penetration_margin,
                                       item_neighbours=nb[pushed_rows][:, pushed_rows],
-                                      max_clearance=GUARD_MAX_CLEARANCE)
+                                      max_clearance=GUARD_MAX_CLEARANCE,
+                                      also=None if also is None else also[pushed_rows])
         if cloth is not None:
             carry = PushCarry(nb, pushed_rows, cloth.weights)
     # vertices joined by sub-millimetre edges in the items as authored move as one (short_edges)
