@@ -361,12 +361,35 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
     if rigid is not None:
         frame0_items = all_base.copy()
         frame0_items[rigid.rows] = rigid.skinner(skin_mats(0))
+    # no edge stretched beyond the body's own stretch under it (strain_limit)
+    strain = None
+    if opt.mode == "bind" and opt.strain_limit:
+        # not the items skinned whole (shoes, hats, eyebrows) but their
+        # hinges' vertices (a shoe's between the sole and the toe cap or the
+        # collar: in no rigid piece); a rigid patch of a garment is moved by
+        # the guard vertex by vertex and may tear like the rest
+        movable = np.ones(len(all_base), dtype=bool)
+        if rigid is not None:
+            movable[rigid.rows] = False
+            movable[rigid.hinge_rows] = True
+        # against the static dress on the bind pose (the garment at rest on
+        # this body; the frame-0 dress of a posed first frame is stretched already)
+        if bind_dressed is None:
+            bind_dressed = _bind_dress(reference, target, dressed, opt, ref_plan)
+        rest = np.concatenate([m.points for m in bind_dressed.items])
+        rest_body = target.body.points
+        if rest.shape != all_base.shape:
+            rest, rest_body = all_base, base_body
+        strain = StrainLimit(rest, frame_plan.mesh.edges, body.faces, rest_body, movable)
     # vertices outside the body in the bind pose's dress are guarded even
-    # where the first pose's dress starts them inside it
+    # where the first pose's dress starts them inside it (the strain limit's
+    # rest is that dress: its clearances are those)
     also = None
     if bind_dressed is not None and opt.mode == "bind":
         rest_pts = np.concatenate([m.points for m in bind_dressed.items])
-        if rest_pts.shape == all_base.shape:
+        if strain is not None and rest_pts.shape == all_base.shape:
+            also = strain.clearance0 > 0.0
+        elif rest_pts.shape == all_base.shape:
             also = SurfaceQuery(body.faces, body.points).signed_distance(rest_pts) > 0.0
     if cloth is None or opt.measure_every:
         # it pushes (and spreads its pushes over the items) in bind mode when
@@ -401,26 +424,6 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
     if opt.mode == "bind":
         authored = ref_plan.ref_points if len(ref_plan.ref_points) == len(all_base) else all_base
         weld = ShortEdgeWeld(authored, frame_plan.mesh.edges)
-    # no edge stretched beyond the body's own stretch under it (strain_limit)
-    strain = None
-    if opt.mode == "bind" and opt.strain_limit:
-        # not the items skinned whole (shoes, hats, eyebrows) but their
-        # hinges' vertices (a shoe's between the sole and the toe cap or the
-        # collar: in no rigid piece); a rigid patch of a garment is moved by
-        # the guard vertex by vertex and may tear like the rest
-        movable = np.ones(len(all_base), dtype=bool)
-        if rigid is not None:
-            movable[rigid.rows] = False
-            movable[rigid.hinge_rows] = True
-        # against the static dress on the bind pose (the garment at rest on
-        # this body; the frame-0 dress of a posed first frame is stretched already)
-        if bind_dressed is None:
-            bind_dressed = _bind_dress(reference, target, dressed, opt, ref_plan)
-        rest = np.concatenate([m.points for m in bind_dressed.items])
-        rest_body = target.body.points
-        if rest.shape != all_base.shape:
-            rest, rest_body = all_base, base_body
-        strain = StrainLimit(rest, frame_plan.mesh.edges, body.faces, rest_body, movable)
     measures = None
     if opt.measure_every and opt.motion_measures:
         t0 = time.perf_counter()
