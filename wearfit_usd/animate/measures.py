@@ -74,7 +74,7 @@ from scipy.spatial import cKDTree
 
 from ..dress.body_stretch import local_triangles, stretch_range, vertex_stretch
 from ..errors import WearfitError
-from ..geometry.closest import SurfaceQuery, VertexNormals
+from ..geometry.closest import SurfaceQuery, VertexNormals, point_and_normal
 from ..geometry.mesh import edges, similarity_fit
 from ..geometry.rays import cast_rays, ray_triangle
 
@@ -338,10 +338,7 @@ class MotionMeasures:
             out0 = self.outside0[sl]
             new = np.flatnonzero(out0 & (dist[sl] < -self.margin)) + sl.start
             # over a fold: the static foot point, carried by its triangle, and its normal
-            tri = self.faces[self.foot_tri[new]]
-            foot = np.einsum("pk,pkd->pd", self.foot_bary[new], body[tri])
-            fn = np.einsum("pk,pkd->pd", self.foot_bary[new], normals[tri])
-            fn /= np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-12)
+            foot, fn = point_and_normal(body, normals, self.faces, self.foot_tri[new], self.foot_bary[new])
             fold = self._folded(body, foot, fn, np.maximum(self.clearance0[new], 0.0) + self.fold_margin)
             n_out = int(out0.sum())
             row["new_pen_pct"] = 100.0 * float(np.sum(~fold)) / n_out if n_out else 0.0

@@ -51,7 +51,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..dress.body_stretch import local_triangles, offset_factor, principal_stretches, triangle_grams
-from ..geometry.closest import SurfaceQuery, VertexNormals
+from ..geometry.closest import SurfaceQuery, VertexNormals, point_and_normal
 from ..kernels import HAVE_NUMBA, StrainRest, strain_frame
 
 LIMIT = 1.1        # x the body's own stretch an edge may reach
@@ -134,10 +134,7 @@ class StrainLimit:
                                             shape=(m, ne))
         f = self.faces
         gram = triangle_grams(self.body0, f)
-        ff = f[self.foot_tri]
-        foot0 = np.einsum("mc,mci->mi", self.foot_bary, self.body0[ff])
-        normal0 = np.einsum("mc,mci->mi", self.foot_bary, self._normals0[ff])
-        normal0 /= np.maximum(np.linalg.norm(normal0, axis=1, keepdims=True), 1e-300)
+        foot0, normal0 = point_and_normal(self.body0, self._normals0, f, self.foot_tri, self.foot_bary)
         self._rest = StrainRest(np.ascontiguousarray(self.edges), np.ascontiguousarray(self.len0),
                                 np.ascontiguousarray(self.triangles), f, np.ascontiguousarray(gram),
                                 np.ascontiguousarray(self.foot_tri, dtype=np.int64),

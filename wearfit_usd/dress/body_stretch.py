@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ..geometry.closest import VertexNormals
+from ..geometry.closest import VertexNormals, point_and_normal
 
 
 def offset_factor(ref_body, fit_body, body_faces, tri, bary, clearance, e, edge_len, normals=None):
@@ -39,12 +39,10 @@ def offset_factor(ref_body, fit_body, body_faces, tri, bary, clearance, e, edge_
     c = np.maximum(0.5 * (clearance[e[:, 0]] + clearance[e[:, 1]]), 0.0)
     used, e = np.unique(e, return_inverse=True)  # only the edges' own vertices
     e = e.reshape(-1, 2)
-    f, bary = body_faces[tri[used]], bary[used]
+    tri, bary = tri[used], bary[used]
     grow, apart = [], None
     for body, normal in zip((ref_body, fit_body), normals):
-        p = np.einsum("mc,mci->mi", bary, body[f])
-        n = np.einsum("mc,mci->mi", bary, normal[f])
-        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+        p, n = point_and_normal(body, normal, body_faces, tri, bary)
         dp = p[e[:, 1]] - p[e[:, 0]]
         l2 = np.einsum("ei,ei->e", dp, dp)
         if apart is None:

@@ -74,6 +74,20 @@ class VertexNormals:
         return vertex_normals(points, self.faces, self.incidence)
 
 
+def point_and_normal(points: np.ndarray, normals: np.ndarray, faces: np.ndarray, tri: np.ndarray,
+                     bary: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The surface points at barycentrics ``bary`` (P, 3) of triangles
+    ``tri`` (P,) of the mesh (points (N, 3), faces (T, 3)), and the unit
+    normals there, the vertex ``normals`` (N, 3) interpolated: (P, 3) each.
+    A skin point found on one pose carried into another (same ``tri`` and
+    ``bary`` on the other pose's points)."""
+    f = faces[tri]
+    p = np.einsum("pc,pci->pi", bary, points[f])
+    n = np.einsum("pc,pci->pi", bary, normals[f])
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+    return p, n
+
+
 class SurfaceQuery:
     """Closest-point and signed-distance queries against a triangle mesh.
 
