@@ -361,6 +361,17 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
     if rigid is not None:
         frame0_items = all_base.copy()
         frame0_items[rigid.rows] = rigid.skinner(skin_mats(0))
+    # the items dressed on the bind pose, point for point with the shot's
+    # (None where they differ): the strain limit's rest and the guard's
+    # outside test (the garment at rest on this body; the frame-0 dress of a
+    # posed first frame is stretched already, and can lie in the skin)
+    if opt.mode == "bind" and opt.strain_limit and bind_dressed is None:
+        bind_dressed = _bind_dress(reference, target, dressed, opt, ref_plan)
+    bind_rest = None
+    if bind_dressed is not None:
+        bind_rest = np.concatenate([m.points for m in bind_dressed.items])
+        if bind_rest.shape != all_base.shape:
+            bind_rest = None
     # no edge stretched beyond the body's own stretch under it (strain_limit)
     strain = None
     if opt.mode == "bind" and opt.strain_limit:
@@ -372,25 +383,18 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
         if rigid is not None:
             movable[rigid.rows] = False
             movable[rigid.hinge_rows] = True
-        # against the static dress on the bind pose (the garment at rest on
-        # this body; the frame-0 dress of a posed first frame is stretched already)
-        if bind_dressed is None:
-            bind_dressed = _bind_dress(reference, target, dressed, opt, ref_plan)
-        rest = np.concatenate([m.points for m in bind_dressed.items])
-        rest_body = target.body.points
-        if rest.shape != all_base.shape:
-            rest, rest_body = all_base, base_body
-        strain = StrainLimit(rest, frame_plan.mesh.edges, body.faces, rest_body, movable)
+        if bind_rest is None:
+            strain = StrainLimit(all_base, frame_plan.mesh.edges, body.faces, base_body, movable)
+        else:
+            strain = StrainLimit(bind_rest, frame_plan.mesh.edges, body.faces, target.body.points, movable)
     # vertices outside the body in the bind pose's dress are guarded even
     # where the first pose's dress starts them inside it (the strain limit's
-    # rest is that dress: its clearances are those)
+    # rest clearances are theirs)
     also = None
-    if bind_dressed is not None and opt.mode == "bind":
-        rest_pts = np.concatenate([m.points for m in bind_dressed.items])
-        if strain is not None and rest_pts.shape == all_base.shape:
-            also = strain.clearance0 > 0.0
-        elif rest_pts.shape == all_base.shape:
-            also = SurfaceQuery(body.faces, body.points).signed_distance(rest_pts) > 0.0
+    if opt.mode == "bind" and bind_rest is not None:
+        clear = (strain.clearance0 if strain is not None
+                 else SurfaceQuery(body.faces, body.points).signed_distance(bind_rest))
+        also = clear > 0.0
     if cloth is None or opt.measure_every:
         # it pushes (and spreads its pushes over the items) in bind mode when
         # no other guard does; else it only counts penetrations
