@@ -293,3 +293,84 @@ def test_low_poly_figure_is_covered(data_dir, ref_male):
     assert d["target_to_fit_surface_p99_mm"] < 30.0
     assert d["target_to_fit_surface_mean_mm"] < 3.0
     assert d["fit_to_target_surface_mean_mm"] < 6.0
+    # its box head is twice the reference's: stretched before the non-rigid
+    # step, the head no longer folds onto it (147 flipped triangles before)
+    assert min(d["scaled_end_segments"]["neck_01"]) > 1.5
+    assert d["flipped_triangles"] <= 20
+
+
+@pytest.mark.slow
+def test_stylised_head_is_covered(data_dir, ref_male):
+    # GDQuest's mannequin: a head 1.6-1.9x the reference's. Before the end
+    # segments were stretched, the fit left its face uncovered (target head
+    # vertices -> fit p99 62 mm) and the fedora sat over the eyes in a walk.
+    from wearfit_usd.fit.measures import SurfaceIndex
+    from wearfit_usd.io.usd import read_character
+    t = read_character(data_dir / "thirdparty" / "bodies" / "mannequiny_idle_blender.usdc")
+    r = fit_character(ref_male, t)
+    assert "neck_01" in r.diagnostics["scaled_end_segments"]
+    names = t.skeleton.joint_names
+    dom = t.body.joint_indices[np.arange(t.body.n_points), np.argmax(t.body.joint_weights, 1)]
+    head = t.body.points[dom == names.index("head")]
+    d = SurfaceIndex(r.points, ref_male.body.faces).query(head)["distance"] * 1e3
+    assert np.percentile(d, 99) < 25.0, np.percentile(d, 99)
+    off = fit_character(ref_male, t, FitOptions(scale_ends=False))
+    d0 = SurfaceIndex(off.points, ref_male.body.faces).query(head)["distance"] * 1e3
+    assert np.percentile(d0, 99) > 2 * np.percentile(d, 99)
+
+
+def test_turn_and_scale_about_a_joint_recovers_a_known_map():
+    # a box-like cloud turned 20 degrees about z and stretched 1.8 / 0.7 /
+    # 1.0 along the target's axes: the ICP recovers both within a few %
+    from wearfit_usd.fit.pose_align import _angle, _turn_scale_about
+    from wearfit_usd.transforms import rotation_between
+    rng = np.random.default_rng(3)
+    src = rng.uniform([-0.02, -0.04, -0.03], [0.12, 0.04, 0.03], size=(1500, 3))
+    centre = np.array([0.0, 0.0, 0.0])
+    a = np.radians(20.0)
+    rot = np.array([[np.cos(a), np.sin(a), 0], [-np.sin(a), np.cos(a), 0], [0, 0, 1.0]])
+    axes = np.eye(3)[[0, 1, 2]] @ rot        # the target's principal axes
+    truth = np.array([1.8, 0.7, 1.0])
+    dst = (src @ rot) @ (axes.T * truth) @ axes
+    lin, r, s, before, after = _turn_scale_about(src, dst, centre, axes, scale_range=(0.5, 3.0))
+    assert np.allclose(s, truth, atol=0.02), s
+    assert abs(_angle(r) - 20.0) < 0.5
+    assert after < 0.01 * before
+    # the stretch alone (turn=False) leaves the rotation at identity
+    _, r0, s0, _, _ = _turn_scale_about(src, dst, centre, axes, turn=False)
+    assert np.allclose(r0, np.eye(3)) and rotation_between is not None
+    assert np.all((s0 >= 0.67) & (s0 <= 1.6))   # the default range clips
+
+
+def test_end_segment_of_another_size_is_stretched_not_only_turned():
+    # two-joint "leg": a root and an end joint (a foot, the one pair) whose
+    # vertices, on the target, are twice as long: the end segment is
+    # stretched about its joint; with scale=False it is left alone (a turn
+    # cannot lengthen it)
+    from wearfit_usd.fit.pose_align import refine_end_segments
+    rng = np.random.default_rng(5)
+    root = rng.uniform([-0.05, 0.1, -0.05], [0.05, 0.5, 0.05], size=(600, 3))
+    foot = rng.uniform([-0.03, 0.0, 0.0], [0.03, 0.04, 0.12], size=(600, 3))
+    posed = np.concatenate([root, foot])
+    ji = np.zeros((1200, 1), int)
+    ji[600:] = 1
+    jw = np.ones((1200, 1))
+    parents = np.array([-1, 0])
+    world = np.tile(np.eye(4), (2, 1, 1))
+    world[1, 3, :3] = [0.0, 0.05, 0.0]
+    skin = np.tile(np.eye(4), (2, 1, 1))
+    t_foot = foot.copy()
+    t_foot[:, 2] *= 2.0
+    target = np.concatenate([root, t_foot])
+    w2, s2, turns = refine_end_segments(posed, ji, jw, world, skin, parents, target, ji, jw,
+                                        parents, [(1, 1)])
+    assert [t[0] for t in turns] == [1], turns
+    scales = turns[0][2]
+    assert 1.7 < max(scales) < 2.3, turns
+    moved = posed[600:] @ s2[1, :3, :3] + s2[1, 3, :3]
+    assert np.ptp(moved[:, 2]) > 1.7 * np.ptp(foot[:, 2])
+    # joint frames stay orthonormal
+    assert np.allclose(w2[1, :3, :3] @ w2[1, :3, :3].T, np.eye(3), atol=1e-9)
+    _, _, none = refine_end_segments(posed, ji, jw, world, skin, parents, target, ji, jw,
+                                     parents, [(1, 1)], scale=False)
+    assert none == []

@@ -71,6 +71,7 @@ class FitOptions:
     pose_align: bool = True            # skeleton-driven posing (step 1)
     stretch_bones: bool = True         # stretch limbs to the target bone lengths
     refine_ends: bool = True           # turn feet, hands, heads onto the target's (needs its weights)
+    scale_ends: bool = True            # ... and stretch them where the target's are another size
     prune_leaves: bool = True          # unpair end joints whose bone is < 0.7 or > 1.4 x the
                                        # reference's (a toe joint under the ankle)
     same_topology_shortcut: bool = True
@@ -504,12 +505,17 @@ def fit_body(ref_points: Points, ref_faces: Faces, target_points: Points, target
                     posed, np.asarray(ref_joint_indices), np.asarray(ref_joint_weights),
                     joint_world, pose["skin"], ref_skeleton.parents, target_points,
                     np.asarray(target_joint_indices), np.asarray(target_joint_weights),
-                    target_skeleton.parents, pairs, target_faces=target_faces[tgt_valid])
+                    target_skeleton.parents, pairs, target_faces=target_faces[tgt_valid],
+                    scale=opts.scale_ends)
                 if turns:
                     posed = skin_points(ref_points, np.asarray(ref_joint_indices),
                                         np.asarray(ref_joint_weights), skin)
                     diag["turned_end_segments"] = {ref_skeleton.joint_names[j]: a
-                                                   for j, a in turns}
+                                                   for j, a, _ in turns}
+                    scaled = {ref_skeleton.joint_names[j]: list(s) for j, _, s in turns
+                              if any(v != 1.0 for v in s)}
+                    if scaled:
+                        diag["scaled_end_segments"] = scaled
 
             diag["alignment"] = "pose"
         else:

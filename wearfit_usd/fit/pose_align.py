@@ -392,6 +392,59 @@ def _turn_about(src: Points, dst: Points, centre: np.ndarray, iterations: int = 
     return rot, before, rms(rot)
 
 
+def _angle(rot: np.ndarray) -> float:
+    """Degrees turned by a (3, 3) rotation."""
+    return float(np.degrees(np.arccos(np.clip((np.trace(rot) - 1) / 2, -1, 1))))
+
+
+def _turn_scale_about(src: Points, dst: Points, centre: np.ndarray, axes: np.ndarray,
+                      scale_range: tuple[float, float] = (0.67, 1.6), iterations: int = 30,
+                      turn: bool = True):
+    """Rotation followed by a scale along three axes, about ``centre``,
+    taking point set src onto point set dst (symmetric closest-point ICP).
+
+    The map is ``p -> (p - c) @ R @ M + c`` with ``M = axes.T @ diag(s) @
+    axes``: src turned by R (3, 3), then stretched by s_k along the rows of
+    ``axes`` (3, 3) orthonormal (the target segment's principal axes), each
+    s_k clipped to ``scale_range``. With the correspondences fixed, R is the
+    Kabsch rotation of src onto dst with the current scale undone, and s_k
+    the least-squares ratio of the turned src to dst along axis k.
+
+    Returns ((3, 3) row-vector linear map R @ M, R, s (3,), RMS before, RMS
+    after).
+    """
+    tree_d = cKDTree(dst)
+    a0 = src - centre
+    b0 = dst - centre
+    rot = np.eye(3)
+    s = np.ones(3)
+
+    def linear(r, sc):
+        return r @ (axes.T * sc) @ axes
+
+    def rms(lin):
+        moved = a0 @ lin + centre
+        d1, _ = tree_d.query(moved)
+        d2, _ = cKDTree(moved).query(dst)
+        return float(np.sqrt(0.5 * (np.mean(d1 ** 2) + np.mean(d2 ** 2))))
+
+    before = rms(np.eye(3))
+    for _ in range(iterations):
+        moved = a0 @ linear(rot, s) + centre
+        _, i_f = tree_d.query(moved)
+        _, i_b = cKDTree(moved).query(dst)
+        a = np.concatenate([a0, a0[i_b]])
+        b = np.concatenate([b0[i_f], b0])
+        unscaled = b @ (axes.T / s) @ axes
+        if turn:
+            rot = best_rotation(a.T @ unscaled)[0]
+        ar = a @ rot @ axes.T
+        bf = b @ axes.T
+        s = np.clip((ar * bf).sum(0) / np.maximum((ar * ar).sum(0), 1e-12), *scale_range)
+    lin = linear(rot, s)
+    return lin, rot, s, before, rms(lin)
+
+
 def refine_end_segments(posed: Points, joint_indices: np.ndarray, joint_weights: np.ndarray,
                         world: Matrices4, skin: Matrices4, ref_parents: np.ndarray,
                         target_points: Points, target_joint_indices: np.ndarray,
@@ -399,7 +452,9 @@ def refine_end_segments(posed: Points, joint_indices: np.ndarray, joint_weights:
                         pairs: list[tuple[int, int]], target_faces: np.ndarray | None = None,
                         min_gain: float = 0.3, min_fraction: float = 0.03,
                         max_angle_deg: float = 45.0,
-                        min_angle_deg: float = 8.0, sample: int = 1500) -> tuple[Matrices4, Matrices4, list]:
+                        min_angle_deg: float = 8.0, sample: int = 1500, scale: bool = True,
+                        min_scale_change: float = 0.1,
+                        scale_range: tuple[float, float] = (0.5, 3.0)) -> tuple[Matrices4, Matrices4, list]:
     """Turn end segments (feet with their toes, hands, heads) about their
     mapped joint so their surface lies on the target's matching segment.
 
@@ -415,10 +470,24 @@ def refine_end_segments(posed: Points, joint_indices: np.ndarray, joint_weights:
     ``min_angle_deg``: where the pose step already agrees (the MakeHuman
     bodies) nothing changes.
 
+    Stylised figures also differ in size per segment (GDQuest's mannequin:
+    a head 1.6-1.9x the reference's, toe caps three times as long as its
+    toes; Khronos' RiggedFigure: a box head twice the size): a bone's length
+    gives no measure of them, and the non-rigid step then stretches a small
+    head or foot over a big one, leaving hats over the eyes and toes out of
+    the shoes. With ``scale``, the segment is also matched by a turn
+    followed by a stretch along the target segment's principal axes
+    (:func:`_turn_scale_about`, each factor within ``scale_range``; a
+    stretch alone when the turn found is over ``max_angle_deg``), kept only
+    when it lowers the RMS by ``min_gain`` more than the turn alone (which
+    is itself kept when it qualifies as above). A scale changes the joints'
+    positions below the segment, not their (orthonormal) frames.
+
     posed (N, 3) posed reference points; joint_indices/joint_weights (N, K);
     world, skin (J, 4, 4) posed joint transforms and skinning matrices from
     :func:`pose_to_target`; target_points (M, 3) with (M, K') influences.
-    Returns (world, skin, [(ref joint, degrees)] of the turns made).
+    Returns (world, skin, [(ref joint, degrees, (3,) scale factors)] of the
+    changes made).
     """
     world = world.copy()
     skin = skin.copy()
@@ -465,15 +534,31 @@ def refine_end_segments(posed: Points, joint_indices: np.ndarray, joint_weights:
         vt = vt if len(vt) <= sample else rng.choice(vt, sample, replace=False)
         centre = world[j, 3, :3]
         rot, before, after = _turn_about(posed[vr], target_points[vt], centre)
-        angle = float(np.degrees(np.arccos(np.clip((np.trace(rot) - 1) / 2, -1, 1))))
-        if after > (1.0 - min_gain) * before or not min_angle_deg <= angle <= max_angle_deg:
+        lin, s = rot, np.ones(3)
+        if scale:
+            # a scale as well only where it explains much more than the turn
+            # (a stylised figure's big feet, not one MakeHuman body's against
+            # another's)
+            tp = target_points[vt]
+            axes = np.linalg.svd(tp - tp.mean(0), full_matrices=False)[2]
+            fit = _turn_scale_about(posed[vr], tp, centre, axes, scale_range=scale_range)
+            if _angle(fit[1]) > max_angle_deg:
+                fit = _turn_scale_about(posed[vr], tp, centre, axes, scale_range=scale_range,
+                                        turn=False)
+            turned = after if min_angle_deg <= _angle(rot) <= max_angle_deg else before
+            if fit[4] < (1.0 - min_gain) * turned:
+                lin, rot, s, _, after = fit
+        angle = _angle(rot)
+        changed = angle >= min_angle_deg or float(np.abs(s - 1).max()) >= min_scale_change
+        if after > (1.0 - min_gain) * before or angle > max_angle_deg or not changed:
             continue
         turn = np.eye(4)
-        turn[:3, :3] = rot
-        turn[3, :3] = centre - centre @ rot
-        world[sub_r] = world[sub_r] @ turn
+        turn[:3, :3] = lin
+        turn[3, :3] = centre - centre @ lin
+        world[sub_r, 3, :3] = world[sub_r, 3, :3] @ lin + turn[3, :3]
+        world[sub_r, :3, :3] = world[sub_r, :3, :3] @ rot
         skin[sub_r] = skin[sub_r] @ turn
         moved = sub_r[dom_r]
-        posed[moved] = posed[moved] @ rot + turn[3, :3]
-        turns.append((j, round(angle, 1)))
+        posed[moved] = posed[moved] @ lin + turn[3, :3]
+        turns.append((j, round(angle, 1), tuple(round(float(v), 2) for v in s)))
     return world, skin, turns
