@@ -453,7 +453,8 @@ def refine_end_segments(posed: Points, joint_indices: np.ndarray, joint_weights:
                         min_gain: float = 0.3, min_fraction: float = 0.03,
                         max_angle_deg: float = 45.0,
                         min_angle_deg: float = 8.0, sample: int = 1500, scale: bool = True,
-                        min_scale_change: float = 0.1,
+                        min_scale_change: float = 0.1, min_scale_gain: float = 0.3,
+                        scale_min_residual: float = 0.02,
                         scale_range: tuple[float, float] = (0.5, 3.0)) -> tuple[Matrices4, Matrices4, list]:
     """Turn end segments (feet with their toes, hands, heads) about their
     mapped joint so their surface lies on the target's matching segment.
@@ -480,8 +481,11 @@ def refine_end_segments(posed: Points, joint_indices: np.ndarray, joint_weights:
     (:func:`_turn_scale_about`, each factor within ``scale_range``; a
     stretch alone when the turn found is over ``max_angle_deg``), kept only
     when it lowers the RMS by ``min_gain`` more than the turn alone (which
-    is itself kept when it qualifies as above). A scale changes the joints'
-    positions below the segment, not their (orthonormal) frames.
+    is itself kept when it qualifies as above), and only where the turn
+    leaves an RMS over ``scale_min_residual`` x the body's height (the
+    MakeHuman bodies' segments: at most 28 mm; the figures' 36-132 mm). A
+    scale changes the joints' positions below the segment, not their
+    (orthonormal) frames.
 
     posed (N, 3) posed reference points; joint_indices/joint_weights (N, K);
     world, skin (J, 4, 4) posed joint transforms and skinning matrices from
@@ -517,6 +521,7 @@ def refine_end_segments(posed: Points, joint_indices: np.ndarray, joint_weights:
             b = np.stack([1 - sq, sq * (1 - r2), sq * r2], axis=1)
             target_points = np.einsum("mk,mkj->mj", b, tri[t])
             dom_t = dom_t[f[t, np.argmax(b, axis=1)]]
+    height = float(np.ptp(posed, axis=0).max())
     turns = []
     for j in range(n):
         if mapping[j] < 0:
@@ -535,18 +540,20 @@ def refine_end_segments(posed: Points, joint_indices: np.ndarray, joint_weights:
         centre = world[j, 3, :3]
         rot, before, after = _turn_about(posed[vr], target_points[vt], centre)
         lin, s = rot, np.ones(3)
-        if scale:
-            # a scale as well only where it explains much more than the turn
-            # (a stylised figure's big feet, not one MakeHuman body's against
-            # another's)
+        # what the turn leaves (all of it when the turn found is implausible)
+        turned = before if _angle(rot) > max_angle_deg else after
+        if scale and turned > scale_min_residual * height:
+            # a scale as well only where the segment is centimetres off after
+            # the turn and the scale explains much more of it (a stylised
+            # figure's big head or toe caps, not one MakeHuman body's against
+            # another's: their residuals are under 28 mm, the figures' 36-132)
             tp = target_points[vt]
             axes = np.linalg.svd(tp - tp.mean(0), full_matrices=False)[2]
             fit = _turn_scale_about(posed[vr], tp, centre, axes, scale_range=scale_range)
             if _angle(fit[1]) > max_angle_deg:
                 fit = _turn_scale_about(posed[vr], tp, centre, axes, scale_range=scale_range,
                                         turn=False)
-            turned = after if min_angle_deg <= _angle(rot) <= max_angle_deg else before
-            if fit[4] < (1.0 - min_gain) * turned:
+            if fit[4] < (1.0 - min_scale_gain) * turned:
                 lin, rot, s, _, after = fit
         angle = _angle(rot)
         changed = angle >= min_angle_deg or float(np.abs(s - 1).max()) >= min_scale_change
