@@ -374,3 +374,7 @@ def test_end_segment_of_another_size_is_stretched_not_only_turned():
     _, _, none = refine_end_segments(posed, ji, jw, world, skin, parents, target, ji, jw,
                                      parents, [(1, 1)], scale=False)
     assert none == []
+    # a stretch stopped at the range's end is no size found: not kept
+    _, _, capped = refine_end_segments(posed, ji, jw, world, skin, parents, target, ji, jw,
+                                       parents, [(1, 1)], scale_range=(0.5, 1.5))
+    assert capped == []

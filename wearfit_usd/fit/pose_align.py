@@ -483,7 +483,8 @@ def refine_end_segments(posed: Points, joint_indices: np.ndarray, joint_weights:
     when it lowers the RMS by ``min_gain`` more than the turn alone (which
     is itself kept when it qualifies as above), and only where the turn
     leaves an RMS over ``scale_min_residual`` x the body's height (the
-    MakeHuman bodies' segments: at most 28 mm; the figures' 36-132 mm). A
+    MakeHuman bodies' segments: at most 28 mm; the figures' 36-132 mm) and
+    no factor stopped at an end of ``scale_range`` (no size found). A
     scale changes the joints' positions below the segment, not their
     (orthonormal) frames.
 
@@ -553,7 +554,11 @@ def refine_end_segments(posed: Points, joint_indices: np.ndarray, joint_weights:
             if _angle(fit[1]) > max_angle_deg:
                 fit = _turn_scale_about(posed[vr], tp, centre, axes, scale_range=scale_range,
                                         turn=False)
-            if fit[4] < (1.0 - min_scale_gain) * turned:
+            # a factor stopped at the range's end is no size found (GDQuest's
+            # toe caps: 3 / 3 / 0.5 flattened the toes into a slab the shoes
+            # crumpled on, shoes01's stretch max 2.8 -> 5.1 in a walk)
+            inside = np.all((fit[2] > scale_range[0] + 1e-6) & (fit[2] < scale_range[1] - 1e-6))
+            if inside and fit[4] < (1.0 - min_scale_gain) * turned:
                 lin, rot, s, _, after = fit
         angle = _angle(rot)
         changed = angle >= min_angle_deg or float(np.abs(s - 1).max()) >= min_scale_change
