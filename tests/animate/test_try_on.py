@@ -351,6 +351,22 @@ def test_game_body_keeps_the_ponytail_out_of_the_nape(tmp_path, ref_female, bvh_
     assert w["stretch_p99"]["value"] < 7.0, w
 
 
+@pytest.mark.slow
+def test_skin_decals_stay_on_a_coarse_body(tmp_path, ref_female, walk, data_dir):
+    # RiggedFigure's box head (20 cm triangles whose corners follow two
+    # joints): the eyebrows skinned with the blended weights under them left
+    # the face, 22 mm inside the box at frame 0 and 92 % of them inside in
+    # the worst frame; bound to the triangles, as other items are on coarse
+    # bodies, they stay on it
+    figure = read_character(data_dir / "thirdparty" / "bodies" / "RiggedFigure_blender.usdc")
+    rep = animate(ref_female, figure, walk, tmp_path / "walk.usdc",
+                  AnimateOptions(start=1, end=61, fps=30, measure_every=1))
+    assert "eyebrow001" not in rep.skinned_rigid_items and "shoes02" in rep.skinned_rigid_items
+    w = rep.motion_worst["eyebrow001"]
+    assert w["new_pen_pct"]["value"] < 1.0, w
+    assert w["separation_p95_mm"]["value"] < 3.0, w
+
+
 def test_sub_millimetre_edges_hold_together(tmp_path, ref_female_longskirt, bvh_dir):
     """bob01 has edges 0.2 mm long whose ends the binding moved apart: in
     the Daz walk's frame 4 one opened to 5.9 mm (29x the skin's stretch).
