@@ -480,7 +480,7 @@ def refine_end_segments(posed: Points, joint_indices: np.ndarray, joint_weights:
     followed by a stretch along the target segment's principal axes
     (:func:`_turn_scale_about`, each factor within ``scale_range``; a
     stretch alone when the turn found is over ``max_angle_deg``), kept only
-    when it lowers the RMS by ``min_gain`` more than the turn alone (which
+    when it lowers the RMS by ``min_scale_gain`` more than the turn alone (which
     is itself kept when it qualifies as above), and only where the turn
     leaves an RMS over ``scale_min_residual`` x the body's height (the
     MakeHuman bodies' segments: at most 28 mm; the figures' 36-132 mm) and
