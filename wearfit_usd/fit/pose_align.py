@@ -368,28 +368,14 @@ def _dominant(joint_indices: np.ndarray, joint_weights: np.ndarray) -> np.ndarra
 
 def _turn_about(src: Points, dst: Points, centre: np.ndarray, iterations: int = 12):
     """Rotation about ``centre`` taking point set src onto point set dst
-    (symmetric closest-point ICP, no correspondence given).
+    (symmetric closest-point ICP, no correspondence given):
+    :func:`_turn_scale_about` with the scale held at 1 (identity axes, on
+    which its products are exact).
 
     Returns ((3, 3) row-vector rotation, RMS before, RMS after)."""
-    tree_d = cKDTree(dst)
-    a0 = src - centre
-    rot = np.eye(3)
-
-    def rms(r):
-        moved = a0 @ r + centre
-        d1, _ = tree_d.query(moved)
-        d2, _ = cKDTree(moved).query(dst)
-        return float(np.sqrt(0.5 * (np.mean(d1 ** 2) + np.mean(d2 ** 2))))
-
-    before = rms(rot)
-    for _ in range(iterations):
-        moved = a0 @ rot + centre
-        _, i_f = tree_d.query(moved)
-        _, i_b = cKDTree(moved).query(dst)
-        a = np.concatenate([a0, a0[i_b]])
-        b = np.concatenate([dst[i_f], dst]) - centre
-        rot = best_rotation(a.T @ b)[0]
-    return rot, before, rms(rot)
+    _, rot, _, before, after = _turn_scale_about(src, dst, centre, np.eye(3), scale_range=(1.0, 1.0),
+                                                 iterations=iterations)
+    return rot, before, after
 
 
 def _angle(rot: np.ndarray) -> float:
