@@ -136,6 +136,35 @@ def test_a_push_left_inside_is_redone_from_the_whole_body():
     np.testing.assert_array_equal(off._checked(pts, out.copy()), out)
 
 
+def test_a_vertex_deep_in_a_limb_that_moved_is_checked_against_the_limb_now():
+    # a waistband vertex 6 cm inside a thigh that swept up through it in a
+    # fast turn: no body vertex nor triangle centre within the grids' radius,
+    # and its frame-0 triangles carried half a metre away by the limb. The
+    # whole-body check took its closest point among those alone and pushed
+    # it 49 cm (the long skirt, CMU 131_01 at frame 82): it must find the
+    # limb it is in now, and push by its depth there
+    body = trimesh.creation.icosphere(subdivisions=3, radius=0.3)
+    bp, bf = np.asarray(body.vertices, float), np.asarray(body.faces, np.int64)
+    pts = np.array([[0.303, 0.0, 0.0]])
+    g = PenetrationGuard(bf, bp, pts)
+    # the body turned half round and moved: the vertex is 8 cm under the
+    # skin on the far side from its frame-0 triangles
+    turn = np.diag([-1.0, 1.0, -1.0])
+    moved = bp @ turn.T + [0.303 - 0.22, 0.0, 0.0]
+    q = SurfaceQuery(bf, moved)
+    depth = -float(q.signed_distance(pts)[0])
+    assert 0.05 < depth < 0.12
+    g.update(moved)
+    # as the frame's pass leaves it: pushed along some normal, to be checked
+    g.push[:] = 0.01
+    g.direction[:] = [1.0, 0.0, 0.0]
+    fixed = g._checked(pts, pts + [[0.01, 0.0, 0.0]])
+    # pushed out of the sphere where it is now, by its depth plus its
+    # clearance, not through the far side
+    assert g.push[0] == pytest.approx(depth + g.target[0], abs=0.003)
+    assert q.signed_distance(fixed)[0] == pytest.approx(g.target[0], abs=0.003)
+
+
 @pytest.mark.parametrize("compiled", [True, False])
 def test_vertices_named_in_also_are_guarded_though_they_start_inside(compiled):
     # a shell that starts 5 mm inside a sphere round +x (a first pose's

@@ -76,6 +76,7 @@ class PenetrationGuard:
     """
 
     DROP = 0.002  # m: an estimated clearance this far under its frame-0 value makes a suspect
+    FAR_CHECK = 0.5  # m: the whole-body check's second, wider search of the nearest triangle centroid
 
     def __init__(self, body_faces: np.ndarray, body_points0: np.ndarray, item_points0: np.ndarray,
                  margin: float = 0.001, decay: float = 0.7, radius: float = 0.03,
@@ -303,6 +304,19 @@ class PenetrationGuard:
         elif self._cgrid.points is not cents:
             self._cgrid.update(cents)
         ci, _ = self._cgrid.nearest(points)
+        miss = np.flatnonzero(ci < 0)
+        if len(miss):
+            # deeper in the body than the grid's radius from every centroid
+            # (a vertex 6 cm inside a thigh): searched farther, not left to
+            # its frame-0 triangles, which a fast limb has carried away (a
+            # skirt's waistband vertex measured 49 cm "inside" those and
+            # was pushed that far)
+            near = self._cgrid.radius
+            self._cgrid.radius = self.FAR_CHECK
+            try:
+                ci[miss] = self._cgrid.nearest(points[miss])[0]
+            finally:
+                self._cgrid.radius = near
         c0 = self.cand0[idx]
         vi = np.where(vi < 0, self.faces[c0[:, 0], 0], vi)
         ci = np.where(ci < 0, c0[:, 0], ci)
