@@ -125,6 +125,37 @@ def test_numba_kernel_matches_numpy_twin():
     np.testing.assert_allclose(out[True], out[False], atol=1e-12)
 
 
+@pytest.mark.skipif(not HAVE_NUMBA, reason="numba not installed: the numpy path is the only one")
+def test_later_calls_on_the_same_body_reuse_its_caps_and_a_new_body_gets_its_own():
+    """A frame's rounds after the weld call the limit again on the same
+    body: the allowed lengths found by the first call are kept (the same
+    numbers as computing them again), and a body that changed, even in
+    place, gets fresh ones."""
+    body, faces = plane()
+    q, e = sheet(y=0.004)
+    rng = np.random.default_rng(5)
+    movable = np.ones(len(q), dtype=bool)
+    bent = body * [1.25, 1.0, 0.9]
+    bent[:, 1] += 0.3 * bent[:, 0] ** 2
+    p = q + rng.normal(0.0, 0.004, q.shape)
+    p[:, 1] += 0.3 * p[:, 0] ** 2
+    kept = StrainLimit(q, e, faces, body, movable, limit=1.1, iterations=3)
+    a = kept(bent, p.copy())
+    caps = kept._caps.cap.copy()
+    assert (caps > 0).sum() > 0
+    b = kept(bent, a.copy(), iterations=3)           # the same body: the caps are reused
+    assert kept._caps.cap[caps > 0] == pytest.approx(caps[caps > 0])
+    fresh = StrainLimit(q, e, faces, body, movable, limit=1.1, iterations=3)
+    fresh(bent, p.copy())
+    fresh._caps = None                               # forget them: computed again
+    np.testing.assert_allclose(b, fresh(bent, a.copy(), iterations=3), atol=1e-12)
+    # the body changed in place (the same array): the caps of the new body
+    bent *= [1.2, 1.0, 1.0]
+    c = kept(bent, b.copy())
+    other = StrainLimit(q, e, faces, body, movable, limit=1.1, iterations=3)
+    np.testing.assert_allclose(c, other(bent, b.copy()), atol=1e-12)
+
+
 def _mesh(name, pts, e):
     from wearfit_usd.model import Mesh
     tri = np.zeros((0, 3), dtype=np.int64)

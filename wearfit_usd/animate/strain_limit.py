@@ -52,7 +52,7 @@ import scipy.sparse as sp
 
 from ..dress.body_stretch import local_triangles, offset_factor, principal_stretches, triangle_grams
 from ..geometry.closest import SurfaceQuery, VertexNormals, point_and_normal
-from ..kernels import HAVE_NUMBA, StrainRest, strain_frame
+from ..kernels import HAVE_NUMBA, StrainRest, clear_caps, new_caps, strain_frame
 
 LIMIT = 1.1        # x the body's own stretch an edge may reach
 ITERATIONS = 16    # Jacobi passes per frame (at most)
@@ -126,6 +126,7 @@ class StrainLimit:
         self._vn = VertexNormals(self.faces, len(self.body0))
         self._normals0 = self._vn(self.body0)
         self.stats = {"frames": 0, "edges_limited": 0}
+        self._caps = self._caps_body = self._caps_normals = None  # the compiled pass's, on the last body
         self.compiled = HAVE_NUMBA if compiled is None else bool(compiled and HAVE_NUMBA)
         if not self.compiled:
             # vertex -> edge incidence (CSR rows: item vertices), for the numpy passes' active edges
@@ -189,13 +190,14 @@ class StrainLimit:
             return points
         body = np.ascontiguousarray(body, dtype=np.float64)
         if self.compiled:
+            caps, normals = self._caps_on(body)
             w = self.inv_mass.copy()
             if pushed is not None:
                 w[np.asarray(pushed, dtype=bool)] /= HEAVY
             work = points if points.flags.c_contiguous and points.dtype == np.float64 else \
                 np.ascontiguousarray(points, dtype=np.float64)
-            self.stats["edges_limited"] += strain_frame(self._rest, body, self._vn(body), work, w, self.limit,
-                                                        its, MARGIN)
+            self.stats["edges_limited"] += strain_frame(self._rest, body, normals, work, w, self.limit, its, MARGIN,
+                                                        caps)
             if work is not points:
                 points[:] = work
             return points
@@ -245,6 +247,21 @@ class StrainLimit:
             active = self._touching(moved)
         self.stats["edges_limited"] += int(limited.sum())
         return points
+
+    def _caps_on(self, body: np.ndarray):
+        """The compiled pass's allowed lengths (:class:`kernels.strain.StrainCaps`)
+        and the vertex normals on ``body`` (N, 3): kept from the last call
+        when its body was the same (a frame's rounds after the weld: the
+        caps cost most of a call), else cleared for this one."""
+        if self._caps is None:
+            self._caps = new_caps(len(self.edges), len(self._rest.clear0), len(self.faces))
+        elif self._caps_body is not None and np.array_equal(self._caps_body, body):
+            return self._caps, self._caps_normals
+        else:
+            clear_caps(self._caps)
+        self._caps_body = body.copy()
+        self._caps_normals = self._vn(body)
+        return self._caps, self._caps_normals
 
     def _touching(self, rows: np.ndarray) -> np.ndarray:
         """The edges (indices) with an end in ``rows``."""

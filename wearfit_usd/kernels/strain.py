@@ -136,23 +136,58 @@ def _offset_factor(rest, body, normals, ei, feet, have_foot):
     return 1.0
 
 
-@jit
-def strain_frame(rest, body, normals, points, w, limit, iterations, margin):
+class StrainCaps(NamedTuple):
+    """One body's allowed edge lengths, filled as the passes need them: a
+    frame's later calls on the same body (the rounds after the weld) reuse
+    them (:func:`new_caps` makes them; a new body needs new ones, or
+    :func:`clear_caps`). cap (E,) -1 where not computed; exact (E,) cap
+    includes the offset factor (else the skin's lower bound); tri_hi (T,)
+    and vhi (M,) the triangles' and vertices' largest stretches (-1: not
+    yet); feet (M, 6) and have_foot (M,) the skin points and normals under
+    the vertices."""
+    cap: np.ndarray
+    exact: np.ndarray
+    tri_hi: np.ndarray
+    vhi: np.ndarray
+    feet: np.ndarray
+    have_foot: np.ndarray
+
+
+def new_caps(n_edges: int, n_points: int, n_faces: int) -> StrainCaps:
+    """Empty :class:`StrainCaps` for a rest state of these sizes."""
+    return StrainCaps(np.full(n_edges, -1.0), np.zeros(n_edges, dtype=np.bool_), np.full(n_faces, -1.0),
+                      np.full(n_points, -1.0), np.empty((n_points, 6)), np.zeros(n_points, dtype=np.bool_))
+
+
+def clear_caps(caps: StrainCaps) -> None:
+    """Forget every computed cap (a new body)."""
+    caps.cap[:] = -1.0
+    caps.exact[:] = False
+    caps.tri_hi[:] = -1.0
+    caps.vhi[:] = -1.0
+    caps.have_foot[:] = False
+
+
+def strain_frame(rest, body, normals, points, w, limit, iterations, margin, caps: StrainCaps | None = None) -> int:
     """One frame's strain limit, in place on points (M, 3); w (M,) the
-    vertices' inverse masses (0: fixed). Returns the number of edges it
-    shortened."""
+    vertices' inverse masses (0: fixed). ``caps``: the allowed lengths on
+    this body known from an earlier call (updated); None: computed afresh.
+    Returns the number of edges it shortened."""
+    if caps is None:
+        caps = new_caps(rest.edges.shape[0], points.shape[0], rest.faces.shape[0])
+    return _strain_frame(rest, body, normals, points, w, limit, iterations, margin, caps)
+
+
+@jit
+def _strain_frame(rest, body, normals, points, w, limit, iterations, margin, caps):
+    """:func:`strain_frame`'s passes."""
     n_e = rest.edges.shape[0]
     m = points.shape[0]
-    cap = np.full(n_e, -1.0)
-    exact = np.zeros(n_e, dtype=np.bool_)  # cap with the offset factor (else the skin's lower bound)
+    cap, exact, tri_hi, vhi, feet, have_foot = caps
     limited = np.zeros(n_e, dtype=np.bool_)
     step = np.zeros((m, 3))
     count = np.zeros(m)
     moved = np.ones(m, dtype=np.bool_)  # edges with neither end moved last pass keep their length
-    tri_hi = np.full(rest.faces.shape[0], -1.0)
-    vhi = np.full(m, -1.0)
-    feet = np.empty((m, 6))
-    have_foot = np.zeros(m, dtype=np.bool_)
     for _ in range(iterations):
         step[:] = 0.0
         count[:] = 0.0
