@@ -166,6 +166,33 @@ def test_a_vertex_deep_in_a_limb_that_moved_is_checked_against_the_limb_now():
 
 
 @pytest.mark.parametrize("compiled", [True, False])
+def test_a_vertex_the_body_came_through_faster_than_the_radius_is_pushed_out(compiled):
+    # 5 cm off the body at frame 0 (no body vertex within the guard's 3 cm:
+    # its estimate is "far"), then the body moves 13 cm towards it in one
+    # frame: 8 cm inside, still no body vertex within 3 cm. The frame's pass
+    # takes it for far outside; it must come out to its clearance (the back
+    # of a long skirt's waistband, 5-6 cm inside the buttocks in a dance)
+    body = trimesh.creation.icosphere(subdivisions=3, radius=0.3)
+    bp, bf = np.asarray(body.vertices, float), np.asarray(body.faces, np.int64)
+    pts = np.array([[0.35, 0.0, 0.0], [0.0, 0.36, 0.0], [-0.32, 0.0, 0.0]])
+    g = PenetrationGuard(bf, bp, pts, max_clearance=0.003, compiled=compiled)
+    assert np.isinf(g.approx0[:2]).all()
+    moved = bp + [0.13, 0.0, 0.0]
+    q = SurfaceQuery(bf, moved)
+    d_before = q.signed_distance(pts)
+    assert d_before[0] < -0.07 and d_before[1] > 0.0 and d_before[2] > 0.0
+    out, _ = g.apply(moved, pts)
+    d = q.signed_distance(out)
+    assert d[0] == pytest.approx(0.003, abs=0.002)
+    assert out[0, 0] > pts[0, 0] + 0.07                 # out along +x, the way it came in
+    # far outside (the second) and near outside (the third) are left alone
+    np.testing.assert_array_equal(out[1:], pts[1:])
+    # and the next frame keeps it out (its push decays from there)
+    again, _ = g.apply(moved, pts)
+    assert q.signed_distance(again)[0] > 0.0
+
+
+@pytest.mark.parametrize("compiled", [True, False])
 def test_vertices_named_in_also_are_guarded_though_they_start_inside(compiled):
     # a shell that starts 5 mm inside a sphere round +x (a first pose's
     # dress in the skin): left there without ``also``, pushed out to the

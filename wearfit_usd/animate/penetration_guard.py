@@ -64,6 +64,16 @@ class PenetrationGuard:
     the closest one on coarse bodies and where body parts cross (an arm
     across the hip), and a push from a wrong surface tears the item.
 
+    Guarded vertices with no body vertex within ``radius`` are not taken
+    for far outside on that alone (:meth:`_deep`): a body part that comes
+    through an item faster than the radius per frame leaves its vertices
+    deeper than the radius, where the estimate sees nothing. The body
+    vertex nearest to them within ``DEEP_REACH`` (searched from its last
+    answer) tells which side of the skin they are on; those behind it get
+    the whole-body check's exact distance and push. The whole-body check
+    itself searches out to ``FAR_CHECK`` for the nearest triangle centre of
+    a vertex that has none within its grid's radius.
+
     With ``also`` (M,) bool, those vertices are guarded too although they
     start inside the body (to the margin): a shot dressed in its first pose
     starts from a dress whose vertices can lie in the skin where the same
@@ -77,6 +87,7 @@ class PenetrationGuard:
 
     DROP = 0.002  # m: an estimated clearance this far under its frame-0 value makes a suspect
     FAR_CHECK = 0.5  # m: the whole-body check's second, wider search of the nearest triangle centroid
+    DEEP_REACH = 0.1  # m: how far the search for a vertex deep inside the body looks for the nearest body vertex
 
     def __init__(self, body_faces: np.ndarray, body_points0: np.ndarray, item_points0: np.ndarray,
                  margin: float = 0.001, decay: float = 0.7, radius: float = 0.03,
@@ -124,6 +135,7 @@ class PenetrationGuard:
         self.push = np.zeros(len(item_points0))   # current push amount (m)
         self.direction = np.zeros((len(item_points0), 3))
         self._hint = np.full(len(item_points0), -1, dtype=np.int64)  # last nearest body vertex
+        self._deep_hint = np.full(len(item_points0), -1, dtype=np.int64)  # and within DEEP_REACH (_deep)
         self._cgrid = None  # the whole-body check's grid over the triangle centroids (built on first use)
         self.check_pushes = bool(check_pushes)
 
@@ -205,6 +217,8 @@ class PenetrationGuard:
                                self._hint)
             n_inside = guard_frame(q, state, self._body(), grid.arrays, self.radius ** 2, self.decay, self.margin,
                                    self.DROP, out)
+            # the kernel's hint is -1 where no body vertex is within the radius
+            out = self._deep(q, out, self.outside0 & (self._hint < 0))
             return self._smoothed(q, self._checked(q, out, before)), int(n_inside)
         push = self.push * self.decay
         pre = item_points + push[:, None] * self.direction
@@ -249,7 +263,57 @@ class PenetrationGuard:
         moving = np.flatnonzero(push)
         out = item_points.copy()
         out[moving] += push[moving, None] * self.direction[moving]
+        out = self._deep(item_points, out, self.outside0 & ~np.isfinite(approx))
         return self._smoothed(item_points, self._checked(item_points, out, before)), n_inside
+
+    def _deep(self, item_points: np.ndarray, out: np.ndarray, far: np.ndarray) -> np.ndarray:
+        """Guarded vertices with no body vertex within ``radius`` (``far``
+        (M,) bool, where the frame's pass found none: it takes them for far
+        outside) that are deep inside instead: the body vertex nearest to
+        them within ``DEEP_REACH`` has them behind its tangent plane. Their
+        exact signed distance among the whole-body check's candidates
+        (:meth:`_check_candidates`) gives the push out to their clearance.
+        A body part that came through them faster than the radius per frame
+        left them there: the back of a long skirt's waistband, 3 cm off the
+        buttocks in a dance's first pose, was 5-6 cm inside them 300 frames
+        later (the CMU dance with the arms held high), under the hot pants.
+        Updates the push state; returns ``out``."""
+        idx = np.flatnonzero(far)
+        if len(idx) == 0:
+            return out
+        grid = self._frame_grid()
+        near = grid.radius
+        grid.radius = self.DEEP_REACH
+        try:
+            # last frame's answer bounds the search (the same answer, fewer cells)
+            vi, _ = grid.nearest(item_points[idx], hint=self._deep_hint[idx])
+        finally:
+            grid.radius = near
+        self._deep_hint[idx] = vi
+        ok = vi >= 0
+        idx, vi = idx[ok], vi[ok]
+        if len(idx) == 0:
+            return out
+        # the side of the vertex's plane: the sum of its triangles' normals
+        # (the ring's padding repeats one: the sign is what counts)
+        n = self.query.face_normal[self.query.ring[vi]].sum(axis=1)
+        behind = np.einsum("ij,ij->i", item_points[idx] - self.query.points[vi], n) < 0.0
+        sel = idx[behind]
+        if len(sel) == 0:
+            return out
+        res = self.query.closest(item_points[sel], candidates=self._check_candidates(sel, item_points[sel]),
+                                 ring=False)
+        p = self.target[sel] - res["distance"]
+        deeper = p > np.maximum(self.push[sel], 1e-5)
+        sel, p = sel[deeper], p[deeper]
+        if len(sel) == 0:
+            return out
+        d = res["normal"][deeper]
+        d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+        self.push[sel] = p
+        self.direction[sel] = d
+        out[sel] = item_points[sel] + p[:, None] * d
+        return out
 
     def _checked(self, item_points: np.ndarray, out: np.ndarray, before=None) -> np.ndarray:
         """The pushed vertices checked against the whole body (the closest
