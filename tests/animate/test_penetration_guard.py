@@ -193,6 +193,23 @@ def test_a_vertex_the_body_came_through_faster_than_the_radius_is_pushed_out(com
 
 
 @pytest.mark.parametrize("compiled", [True, False])
+def test_on_a_coarse_body_the_deep_search_reaches_past_its_long_edges(compiled):
+    # a 42-vertex sphere (edges 18 cm): a vertex 12 cm under its skin has no
+    # body vertex within the 10 cm a dense body needs; the search reaches
+    # 1.5 x the body's long edges there (RiggedFigure's box body: 57 cm)
+    body = trimesh.creation.icosphere(subdivisions=1, radius=0.3)
+    bp, bf = np.asarray(body.vertices, float), np.asarray(body.faces, np.int64)
+    pts = np.array([[0.35, 0.0, 0.0]])
+    g = PenetrationGuard(bf, bp, pts, max_clearance=0.003, compiled=compiled)
+    moved = bp + [0.17, 0.0, 0.0]
+    q = SurfaceQuery(bf, moved)
+    assert q.signed_distance(pts)[0] < -0.1
+    assert np.linalg.norm(moved - pts[0], axis=1).min() > PenetrationGuard.DEEP_REACH
+    out, _ = g.apply(moved, pts)
+    assert q.signed_distance(out)[0] == pytest.approx(0.003, abs=0.002)
+
+
+@pytest.mark.parametrize("compiled", [True, False])
 def test_vertices_named_in_also_are_guarded_though_they_start_inside(compiled):
     # a shell that starts 5 mm inside a sphere round +x (a first pose's
     # dress in the skin): left there without ``also``, pushed out to the

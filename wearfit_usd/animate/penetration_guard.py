@@ -68,8 +68,9 @@ class PenetrationGuard:
     for far outside on that alone (:meth:`_deep`): a body part that comes
     through an item faster than the radius per frame leaves its vertices
     deeper than the radius, where the estimate sees nothing. The body
-    vertex nearest to them within ``DEEP_REACH`` (searched from its last
-    answer) tells which side of the skin they are on; those behind it get
+    vertex nearest to them within ``DEEP_REACH`` (or 1.5 x the body's long
+    edges on a coarse body; searched from its last answer) tells which side
+    of the skin they are on; those behind it get
     the whole-body check's exact distance and push. The whole-body check
     itself searches out to ``FAR_CHECK`` for the nearest triangle centre of
     a vertex that has none within its grid's radius.
@@ -136,6 +137,7 @@ class PenetrationGuard:
         self.direction = np.zeros((len(item_points0), 3))
         self._hint = np.full(len(item_points0), -1, dtype=np.int64)  # last nearest body vertex
         self._deep_hint = np.full(len(item_points0), -1, dtype=np.int64)  # and within DEEP_REACH (_deep)
+        self._deep_reach = None  # DEEP_REACH, or more on a coarse body (set on first use)
         self._cgrid = None  # the whole-body check's grid over the triangle centroids (built on first use)
         self.check_pushes = bool(check_pushes)
 
@@ -283,7 +285,10 @@ class PenetrationGuard:
             return out
         grid = self._frame_grid()
         near = grid.radius
-        grid.radius = self.DEEP_REACH
+        if self._deep_reach is None:
+            # a coarse body's vertices are farther apart than that
+            self._deep_reach = max(self.DEEP_REACH, 1.5 * edge_length_percentile(self.query.points, self.faces))
+        grid.radius = self._deep_reach
         try:
             # last frame's answer bounds the search (the same answer, fewer cells)
             vi, _ = grid.nearest(item_points[idx], hint=self._deep_hint[idx])
