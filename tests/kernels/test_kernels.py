@@ -64,6 +64,28 @@ def test_radius_grid_is_exact_nearest_within_radius(radius, cell):
         assert np.all(np.isinf(d[far]))
 
 
+@pytest.mark.parametrize("radius", [0.01, 0.03, 0.2])
+def test_radius_grid_per_call_radius_is_exact_and_leaves_the_grid_alone(radius):
+    """A call's own radius (farther or nearer than the grid's cells) gives
+    the exact nearest point within it, and the grid's radius is unchanged."""
+    rng = np.random.default_rng(3)
+    body = rng.uniform(-0.5, 0.5, size=(2000, 3))
+    q = rng.uniform(-0.7, 0.7, size=(3000, 3))
+    grid = kernels.RadiusGrid(body, 0.03)
+    dref, iref = cKDTree(body).query(q, k=1, distance_upper_bound=radius)
+    far = np.isinf(dref)
+    assert far.any() and (~far).any()
+    idx, d = grid.nearest(q, radius=radius)
+    np.testing.assert_array_equal(idx < 0, far)
+    np.testing.assert_array_equal(idx[~far], iref[~far])
+    np.testing.assert_allclose(d[~far], dref[~far], rtol=1e-12)
+    assert grid.radius == 0.03
+    own = grid.nearest(q)[0]
+    np.testing.assert_array_equal(own < 0, np.isinf(cKDTree(body).query(q, k=1, distance_upper_bound=0.03)[0]))
+    with pytest.raises(ValueError, match="radius"):
+        grid.nearest(q, radius=0.0)
+
+
 def test_compiled_binding_evaluation_matches_sparse_product():
     body = make_body(resolution=0.03).body
     rng = np.random.default_rng(2)

@@ -637,10 +637,9 @@ class ClothSolver:
         rows = np.arange(len(self.samples)) if rows is None else rows
         if len(rows) == 0:
             return
-        self.grid.radius = radius
         sp = self.samples[rows]
         q = 0.5 * (self.x[sp[:, 0]] + self.x[sp[:, 1]])
-        idx, dist = self.grid.nearest(q, hint=self.hint[rows])
+        idx, dist = self.grid.nearest(q, hint=self.hint[rows], radius=radius)
         found = idx >= 0
         self.hint[rows[found]] = idx[found]
         self.clear[rows] = np.where(found, dist, np.maximum(self.clear[rows], radius))

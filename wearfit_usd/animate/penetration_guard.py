@@ -283,17 +283,11 @@ class PenetrationGuard:
         idx = np.flatnonzero(far)
         if len(idx) == 0:
             return out
-        grid = self._frame_grid()
-        near = grid.radius
         if self._deep_reach is None:
             # a coarse body's vertices are farther apart than that
             self._deep_reach = max(self.DEEP_REACH, 1.5 * edge_length_percentile(self.query.points, self.faces))
-        grid.radius = self._deep_reach
-        try:
-            # last frame's answer bounds the search (the same answer, fewer cells)
-            vi, _ = grid.nearest(item_points[idx], hint=self._deep_hint[idx])
-        finally:
-            grid.radius = near
+        # last frame's answer bounds the search (the same answer, fewer cells)
+        vi, _ = self._frame_grid().nearest(item_points[idx], hint=self._deep_hint[idx], radius=self._deep_reach)
         self._deep_hint[idx] = vi
         ok = vi >= 0
         idx, vi = idx[ok], vi[ok]
@@ -380,12 +374,7 @@ class PenetrationGuard:
             # its frame-0 triangles, which a fast limb has carried away (a
             # skirt's waistband vertex measured 49 cm "inside" those and
             # was pushed that far)
-            near = self._cgrid.radius
-            self._cgrid.radius = self.FAR_CHECK
-            try:
-                ci[miss] = self._cgrid.nearest(points[miss])[0]
-            finally:
-                self._cgrid.radius = near
+            ci[miss] = self._cgrid.nearest(points[miss], radius=self.FAR_CHECK)[0]
         c0 = self.cand0[idx]
         vi = np.where(vi < 0, self.faces[c0[:, 0], 0], vi)
         ci = np.where(ci < 0, c0[:, 0], ci)

@@ -185,10 +185,12 @@ class RadiusGrid:
     cell, then only the cells nearer than the best point so far (finer cells
     measured slower on bodies: more cells to visit, fewer cache hits).
     Compiled with numba; without it a KD-tree does the same job.
-    ``RadiusGrid(points, radius).nearest(q, hint=None)`` returns (index
-    (M,) int, -1 beyond the radius; distance (M,), inf beyond); ``hint``
-    (M,) int, a point likely near each query (last frame's answer, -1
-    none), makes the search cheaper without changing the answer.
+    ``RadiusGrid(points, radius).nearest(q, hint=None, radius=None)``
+    returns (index (M,) int, -1 beyond the radius; distance (M,), inf
+    beyond); ``hint`` (M,) int, a point likely near each query (last
+    frame's answer, -1 none), makes the search cheaper without changing the
+    answer; ``radius`` searches farther (or nearer) than the grid's own for
+    this call (a search farther than the cells visits more of them).
     :attr:`arrays` (:class:`GridArrays`, compiled path) is the built grid,
     for other kernels that search it per point (:func:`nearest_from`).
     """
@@ -230,19 +232,23 @@ class RadiusGrid:
         _grid_build(p, lo, h, dims, order, self.arrays.starts, sorted_points, self._key)
         return self
 
-    def nearest(self, query: np.ndarray, hint: np.ndarray | None = None):
+    def nearest(self, query: np.ndarray, hint: np.ndarray | None = None, radius: float | None = None):
         """Nearest point to each query (M, 3) within the radius: (index (M,),
         -1 beyond; distance (M,), inf beyond). ``hint`` (M,) int: a point
-        likely near each query (-1 none); it changes only the cost."""
+        likely near each query (-1 none); it changes only the cost.
+        ``radius``: this call's radius (None: the grid's)."""
+        r = self.radius if radius is None else float(radius)
+        if not r > 0:
+            raise ValueError(f"radius must be positive, got {radius!r}")
         q = np.ascontiguousarray(query, dtype=np.float64)
         if not HAVE_NUMBA:  # pragma: no cover
-            d, i = self._tree.query(q, k=1, distance_upper_bound=self.radius)
+            d, i = self._tree.query(q, k=1, distance_upper_bound=r)
             i = np.where(np.isinf(d), -1, i)
             return i, d
         idx = np.empty(len(q), dtype=np.int64)
         d2 = np.empty(len(q))
         if hint is None:
             hint = np.full(len(q), -1, dtype=np.int64)
-        _grid_nearest(q, self.arrays, self.radius * self.radius, np.ascontiguousarray(hint, dtype=np.int64), idx,
+        _grid_nearest(q, self.arrays, r * r, np.ascontiguousarray(hint, dtype=np.int64), idx,
                       d2)
         return idx, np.sqrt(d2)
