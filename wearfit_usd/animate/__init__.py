@@ -4,6 +4,7 @@ items, evaluated frame by frame and written as a USD shot.
 - :mod:`.try_on` - :func:`animate` and its options and report (the stage's entry point)
 - :mod:`.frame_eval` - per-frame item points from body points (a dress plan built once)
 - :mod:`.penetration_guard` - push item vertices that sink into the moving body back out
+- :mod:`.contact_hold` - hold a skirt's bound parts on the skin they touch in the static dress
 - :mod:`.skin_transfer` - copy body skin weights to items (the LBS baseline)
 
 :func:`animate`, :class:`AnimateOptions`, :class:`AnimateReport` and

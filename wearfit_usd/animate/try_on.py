@@ -30,6 +30,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from ..dress import regions as R
 from ..dress.apply import apply as apply_plan
 from ..dress.apply import dress
 from ..dress.hidden_body import SHOT_DEPTH, SHOT_MAX_GAP, hide_or_drop
@@ -49,6 +50,7 @@ from ..motion.retarget import BLOCK, retarget, retarget_stream
 from ..motion.skinning import Skinner, skin_points, skinning_matrices
 from ..progress import info, progress
 from .cloth import ClothSolver, PushCarry
+from .contact_hold import ContactHold
 from .frame_eval import FrameEvaluator
 from .loose import cloth_weights
 from .measures import MEASURES, MotionMeasures, worst_frames
@@ -80,6 +82,7 @@ class AnimateOptions:
     pose_align: bool = True            # False: the dressing's body fit by similarity only (--no-pose)
     cloth: bool | None = None          # bind mode: loose parts as XPBD cloth (None: when the plan has any)
     strain_limit: bool = True          # bind mode: no item edge stretched beyond the body's own (strain_limit)
+    contact_hold: bool = True          # bind mode: skirt parts held on the skin they touch (contact_hold)
     max_frames: int | None = None      # refuse longer shots (retarget.OutputError)
     carry_plan: object = None          # io.usd_carry.CarryPlan: the inputs' materials, primvars... to keep
     rigid_items: str = "skinned"       # bind mode: "skinned" (shoes, hats, glasses by LBS with their binding's
@@ -428,6 +431,26 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
                                       also=None if also is None else also[pushed_rows])
         if cloth is not None:
             carry = PushCarry(nb, pushed_rows, cloth.weights)
+    # skirt parts held on the skin they touch in the static dress (their binding's
+    # frames sit above the buttocks; contact_hold): the bound rows, not the
+    # cloth's, nor rigid items'
+    hold = None
+    if opt.mode == "bind" and opt.contact_hold and ref_plan.regions is not None:
+        skirt = np.zeros(len(all_base), dtype=bool)
+        for m, a, b in zip(items, offsets[:-1], offsets[1:]):
+            if m.name in ref_plan.regions.skirt_items:
+                skirt[a:b] = np.asarray(ref_plan.regions.bind[a:b]) == R.HIPS
+        if cloth is not None:
+            skirt &= cloth.weights <= 0
+        if rigid is not None:
+            skirt[rigid.rows] = False
+        if skirt.any():
+            # the contact of the static dress (the bind pose's, as the
+            # measures judge it; a first pose's dress can stand off already)
+            rest_body, rest_items = (base_body, frame0_items) if bind_rest is None else (target.body.points, bind_rest)
+            hold = ContactHold(body.faces, rest_body, rest_items, np.flatnonzero(skirt),
+                               neighbours=frame_plan.mesh.neighbours)
+            hold = hold if hold.active else None
     # vertices joined by sub-millimetre edges in the items as authored move as one (short_edges)
     weld = None
     if opt.mode == "bind":
@@ -485,9 +508,12 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
                 # guard puts them (pushed after it, a bound vertex stood out
                 # of its cloth neighbours)
                 tc = time.perf_counter()
+                evaluated = pts[pushed_rows]
+                if hold is not None:
+                    pts = hold(body_f, pts)
                 moved = push_guard.apply(body_f, pts[pushed_rows])[0]
                 if len(carry):
-                    pts[carry.rows] += carry(moved - pts[pushed_rows])
+                    pts[carry.rows] += carry(moved - evaluated)
                 pts[pushed_rows] = moved
                 t_pen += time.perf_counter() - tc
                 guarded = True
@@ -497,6 +523,8 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
                 if rigid is not None:
                     pts[rigid.rows] = rigid_pts
             tc = time.perf_counter()
+            if hold is not None and not guarded:
+                pts = hold(body_f, pts)
             if opt.mode == "bind" and pushed_rows is not None and not guarded:
                 pts[pushed_rows] = push_guard.apply(body_f, pts[pushed_rows])[0]
             elif opt.mode == "bind" and not guarded:

@@ -67,6 +67,10 @@ def register(sub, common):
     p.add_argument("--strain-limit", action=argparse.BooleanOptionalAction, default=True,
                    help="bind mode: shorten item edges stretched beyond 1.1x the body's own stretch under them "
                         "after the frame's other passes, never into the body (default: on)")
+    p.add_argument("--contact-hold", action=argparse.BooleanOptionalAction, default=True,
+                   help="bind mode: hold a skirt's bound parts on the skin they touch in the static dress (its "
+                        "binding hangs from the hips above the buttocks: bent forward, the back stood 5 cm off "
+                        "them) (default: on)")
     p.add_argument("--rigid-items", choices=("skinned", "bound"), default="skinned",
                    help="bind mode: rigid items (shoes, hats, glasses) and decals on the skin (eyebrows) follow "
                         "the skeleton by skinning with their "
@@ -155,7 +159,8 @@ def run(args) -> int:
                           max_frames=args.max_frames,
                           carry_plan=_carry_plan(reference, target, args),
                           hidden_body="delete" if args.delete_hidden_body else "subset",
-                          rigid_items=args.rigid_items, strain_limit=args.strain_limit)
+                          rigid_items=args.rigid_items, strain_limit=args.strain_limit,
+                          contact_hold=args.contact_hold)
     rep = animate(reference, target, motion, args.output, opts)
     t = rep.timings
     info(f"wrote {args.output}: {rep.frames} frames at {rep.fps:g} fps, {len(reference.items)} items; "
