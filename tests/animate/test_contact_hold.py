@@ -111,7 +111,7 @@ def test_longskirt_back_stays_on_the_buttocks_in_a_forward_bend(tmp_path):
         report = tmp_path / f"{flag}.json"
         assert main(["animate", str(USD_DIR / "ref_female_longskirt.usda"), str(USD_DIR / "body_female_heavy.usdc"),
                      str(BVH_DIR / "cmu_02_05_punch_strike.bvh"), "-o", str(tmp_path / f"{flag}.usdc"),
-                     "--start", "1560", "--end", "1600", "--report", str(report), "-q"]) == 0
+                     "--start", "1560", "--end", "1600", flag, "--report", str(report), "-q"]) == 0
         rep = json.loads(report.read_text())
         assert rep["frames"] == 10
         figures[flag] = {k: v["value"] for k, v in rep["motion_worst"]["long_skirt"].items()}
