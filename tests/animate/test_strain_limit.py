@@ -103,6 +103,32 @@ def test_bad_input():
         StrainLimit(q, e, faces, body, np.ones(3, dtype=bool))
 
 
+@pytest.mark.parametrize("compiled", [False, True] if HAVE_NUMBA else [False])
+def test_a_plane_of_the_frame_is_a_floor_too(compiled):
+    """Known answer: a sheet 1 cm over the plane body, one vertex pulled 2
+    cm down through it (its edges torn). Without floors its neighbours are
+    pulled down towards it as far as the static skin allows (1 mm over the
+    plane); with a floor plane at y = 9 mm (the cloth's skin under them this
+    frame) none goes below it, and the torn vertex only rises."""
+    body, faces = plane()
+    q, e = sheet()
+    p = q.copy()
+    p[14] -= [0.0, 0.02, 0.0]
+    planes = np.zeros((len(q), 6))
+    planes[:, 1] = 0.009
+    planes[:, 4] = 1.0                                  # every vertex: floor y = 9 mm, normal +y
+    lim = StrainLimit(q, e, faces, body, np.ones(len(q), dtype=bool), limit=1.1, iterations=50, compiled=compiled)
+    free = lim(body, p.copy())
+    held = lim(body, p.copy(), planes=planes)
+    rest = np.arange(len(q)) != 14
+    assert free[rest, 1].min() < 0.009 - 1e-3           # without: neighbours pulled below 8 mm
+    assert held[rest, 1].min() >= 0.009 - 1e-12         # with: none below the floor
+    assert held[14, 1] >= p[14, 1]
+    assert ratios(held, q, e).max() < ratios(p, q, e).max()
+    # a zero row is no floor: the same points as without planes
+    np.testing.assert_array_equal(lim(body, p.copy(), planes=np.zeros((len(q), 6))), free)
+
+
 @pytest.mark.skipif(not HAVE_NUMBA, reason="numba not installed: the numpy path is the only one")
 def test_numba_kernel_matches_numpy_twin():
     """The compiled pass and the numpy passes agree on a torn, pushed,
@@ -116,13 +142,22 @@ def test_numba_kernel_matches_numpy_twin():
     p = q + rng.normal(0.0, 0.004, q.shape)
     p[:, 1] += 0.3 * p[:, 0] ** 2
     pushed = rng.random(len(q)) > 0.7
+    # and a floor plane of the frame under part of it (a zero row: none)
+    planes = np.zeros((len(q), 6))
+    under = rng.random(len(q)) > 0.5
+    planes[under, 3:] = rng.normal(0.0, 0.2, (under.sum(), 3)) + [0.0, 1.0, 0.0]
+    planes[under, 3:] /= np.linalg.norm(planes[under, 3:], axis=1, keepdims=True)
+    planes[under, :3] = p[under] - 0.001 * planes[under, 3:]
     out = {}
     for compiled in (False, True):
-        lim = StrainLimit(q, e, faces, body, movable, limit=1.1, iterations=6, compiled=compiled)
-        out[compiled] = lim(bent, np.ascontiguousarray(p.copy()), pushed)
-        assert lim.stats["edges_limited"] > 0
-    assert not np.allclose(out[False], p)
-    np.testing.assert_allclose(out[True], out[False], atol=1e-12)
+        for floor in (None, planes):
+            lim = StrainLimit(q, e, faces, body, movable, limit=1.1, iterations=6, compiled=compiled)
+            out[compiled, floor is None] = lim(bent, np.ascontiguousarray(p.copy()), pushed, planes=floor)
+            assert lim.stats["edges_limited"] > 0
+    assert not np.allclose(out[False, True], p)
+    assert not np.allclose(out[False, False], out[False, True])
+    np.testing.assert_allclose(out[True, True], out[False, True], atol=1e-12)
+    np.testing.assert_allclose(out[True, False], out[False, False], atol=1e-12)
 
 
 @pytest.mark.skipif(not HAVE_NUMBA, reason="numba not installed: the numpy path is the only one")

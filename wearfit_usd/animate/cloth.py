@@ -718,6 +718,30 @@ class ClothSolver:
         self.timings = {"frames": 0, "solve_s": 0.0, "solve_cpu_s": 0.0, "preroll_s": self.timings["solve_s"]}
         return self._points(bound_to)
 
+    def floors(self, rows: np.ndarray | None = None) -> np.ndarray:
+        """(M, 6) the skin under each free vertex after the last step: the
+        tangent plane of its nearest body vertex (the collision's own
+        estimate; a point (3) and the unit normal (3)), as a floor the
+        passes after the cloth must not move it behind
+        (:class:`strain_limit.StrainLimit`'s ``planes``). Shortening an
+        edge over a calf, the strain limit took a free vertex of the long
+        skirt 8 mm into it, the skin showing through (CMU walk, frame 0:
+        the static foot triangle it guards against lay elsewhere). Zero rows
+        (no floor) for the other vertices, the free ones outside ``rows``
+        ((M,) bool; None: all) and those with no body vertex near."""
+        m = len(self.weights)
+        out = np.zeros((m, 6))
+        if self.n_free == 0:
+            return out
+        j = self.hint[:self.n_free]
+        keep = j >= 0
+        if rows is not None:
+            keep &= np.asarray(rows, dtype=bool)[self.free]
+        ok = np.flatnonzero(keep)
+        out[self.free[ok], :3] = self.b0[j[ok]]
+        out[self.free[ok], 3:] = self.n0[j[ok]]
+        return out
+
     def _points(self, bound: np.ndarray) -> np.ndarray:
         """(M, 3): ``bound`` with the free vertices at the cloth's positions."""
         out = np.array(bound, dtype=np.float64, order="C", copy=True)

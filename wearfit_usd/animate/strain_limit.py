@@ -21,7 +21,9 @@ inverse masses (a vertex the guard pushed this frame weighs ``HEAVY`` times
 as much: it is where it must be), the moves of a vertex averaged over its
 violating edges (Jacobi), ``iterations`` passes, and no move taking a
 vertex closer than ``MARGIN`` to the skin under it (an edge over a bending
-joint shortens along its chord, into the body). Only edges longer than
+joint shortens along its chord, into the body), nor behind a plane the
+caller gives for this frame (``planes``: a skirt's free vertices, the skin
+the cloth found under them, :meth:`cloth.ClothSolver.floors`). Only edges longer than
 ``limit`` times their static length are examined (the skin's stretch is
 then computed for them alone), so a frame without tears costs one pass of
 edge lengths.
@@ -160,7 +162,8 @@ class StrainLimit:
                             self.len0[idx], normals=(self._normals0, normals))
         return self.limit * self.len0[idx] * hi_v * np.maximum(fac, 1.0)
 
-    def _not_inward(self, body: np.ndarray, rows: np.ndarray, p: np.ndarray, step: np.ndarray) -> np.ndarray:
+    def _not_inward(self, body: np.ndarray, rows: np.ndarray, p: np.ndarray, step: np.ndarray,
+                    planes: np.ndarray | None = None) -> np.ndarray:
         """``step`` (R, 3) of vertices ``rows`` at ``p`` (R, 3), with its
         part into the body cut to what keeps them ``MARGIN`` outside: the
         skin under a vertex is its static closest triangle on this body
@@ -176,12 +179,23 @@ class StrainLimit:
         inward = -np.einsum("ri,ri->r", step, n)
         room = np.maximum(clear - MARGIN, 0.0)
         cut = np.maximum(inward - room, 0.0)
-        return step + cut[:, None] * n
+        step = step + cut[:, None] * n
+        if planes is not None:
+            # and not behind this frame's plane of the vertex (zero normal: none)
+            g = planes[rows]
+            clear = np.einsum("ri,ri->r", p - g[:, :3], g[:, 3:])
+            inward = -np.einsum("ri,ri->r", step, g[:, 3:])
+            cut = np.maximum(inward - np.maximum(clear, 0.0), 0.0)
+            step = step + cut[:, None] * g[:, 3:]
+        return step
 
     def __call__(self, body: np.ndarray, points: np.ndarray, pushed: np.ndarray | None = None,
-                 iterations: int | None = None) -> np.ndarray:
+                 iterations: int | None = None, planes: np.ndarray | None = None) -> np.ndarray:
         """``iterations``: this call's passes (default ``self.iterations``;
-        a further round in the same frame, see :data:`WELD_ROUND_PASSES`)."""
+        a further round in the same frame, see :data:`WELD_ROUND_PASSES`).
+        ``planes`` (M, 6): a further floor per vertex for this call, a point
+        and a unit normal no move may take it behind (zero normal: none;
+        the cloth's skin under its free vertices, :meth:`cloth.ClothSolver.floors`)."""
         its = self.iterations if iterations is None else int(iterations)
         if iterations is None:
             self.stats["frames"] += 1
@@ -197,7 +211,8 @@ class StrainLimit:
             work = points if points.flags.c_contiguous and points.dtype == np.float64 else \
                 np.ascontiguousarray(points, dtype=np.float64)
             self.stats["edges_limited"] += strain_frame(self._rest, body, normals, work, w, self.limit, its, MARGIN,
-                                                        caps)
+                                                        caps, None if planes is None else
+                                                        np.ascontiguousarray(planes, dtype=np.float64))
             if work is not points:
                 points[:] = work
             return points
@@ -243,7 +258,7 @@ class StrainLimit:
             moved = np.flatnonzero(count > 0)
             step = np.stack([np.bincount(ends, weights=moves[:, i], minlength=n)[moved] for i in range(3)], axis=1)
             step /= count[moved, None]
-            points[moved] += self._not_inward(body, moved, points[moved], step)
+            points[moved] += self._not_inward(body, moved, points[moved], step, planes)
             active = self._touching(moved)
         self.stats["edges_limited"] += int(limited.sum())
         return points

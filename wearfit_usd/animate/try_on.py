@@ -434,6 +434,10 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
     # skirt parts held on the skin they touch in the static dress (their binding's
     # frames sit above the buttocks; contact_hold): the bound rows, not the
     # cloth's, nor rigid items'
+    skirt_items = np.zeros(len(all_base), dtype=bool)
+    if ref_plan.regions is not None:
+        for m, a, b in zip(items, offsets[:-1], offsets[1:]):
+            skirt_items[a:b] = m.name in ref_plan.regions.skirt_items
     hold = None
     if opt.mode == "bind" and opt.contact_hold and ref_plan.regions is not None:
         skirt = np.zeros(len(all_base), dtype=bool)
@@ -529,19 +533,22 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
                 pts[pushed_rows] = push_guard.apply(body_f, pts[pushed_rows])[0]
             elif opt.mode == "bind" and not guarded:
                 pts, _ = guard.apply(body_f, pts)
+            # the skirts' free vertices kept off the skin under them as the
+            # cloth left them (hair gained no cover from it, only stretch)
+            floors = cloth.floors(rows=skirt_items) if cloth is not None and skirt_items.any() else None
             if strain is not None:
                 if pushed_rows is not None:
                     pushed = np.zeros(len(pts), dtype=bool)
                     pushed[pushed_rows] = push_guard.push > 0
                 else:
                     pushed = guard.push > 0
-                strain(body_f, pts, pushed)
+                strain(body_f, pts, pushed, planes=floors)
             if weld is not None:
                 weld(pts)
                 if strain is not None and WELD_ROUND_PASSES:
                     # the weld re-stretches its groups' other edges: more, shorter rounds
                     for _ in range(WELD_ROUNDS):
-                        strain(body_f, pts, pushed, iterations=WELD_ROUND_PASSES)
+                        strain(body_f, pts, pushed, iterations=WELD_ROUND_PASSES, planes=floors)
                         weld(pts)
             check_finite_points(pts, f, rt, motion.path)
             td = time.perf_counter()

@@ -168,18 +168,23 @@ def clear_caps(caps: StrainCaps) -> None:
     caps.have_foot[:] = False
 
 
-def strain_frame(rest, body, normals, points, w, limit, iterations, margin, caps: StrainCaps | None = None) -> int:
+def strain_frame(rest, body, normals, points, w, limit, iterations, margin, caps: StrainCaps | None = None,
+                 planes: np.ndarray | None = None) -> int:
     """One frame's strain limit, in place on points (M, 3); w (M,) the
     vertices' inverse masses (0: fixed). ``caps``: the allowed lengths on
     this body known from an earlier call (updated); None: computed afresh.
+    ``planes`` (M, 6): a second floor per vertex this frame, a point (3) and
+    a unit normal (3) no move may take it behind (a zero normal: none).
     Returns the number of edges it shortened."""
     if caps is None:
         caps = new_caps(rest.edges.shape[0], points.shape[0], rest.faces.shape[0])
-    return _strain_frame(rest, body, normals, points, w, limit, iterations, margin, caps)
+    if planes is None:
+        planes = np.zeros((points.shape[0], 6))
+    return _strain_frame(rest, body, normals, points, w, limit, iterations, margin, caps, planes)
 
 
 @jit
-def _strain_frame(rest, body, normals, points, w, limit, iterations, margin, caps):
+def _strain_frame(rest, body, normals, points, w, limit, iterations, margin, caps, planes):
     """:func:`strain_frame`'s passes."""
     n_e = rest.edges.shape[0]
     m = points.shape[0]
@@ -253,7 +258,16 @@ def _strain_frame(rest, body, normals, points, w, limit, iterations, margin, cap
             clear = (points[v, 0] - px) * nx + (points[v, 1] - py) * ny + (points[v, 2] - pz) * nz
             inward = -(sx * nx + sy * ny + sz * nz)
             cut = max(inward - max(clear - margin, 0.0), 0.0)
-            points[v, 0] += sx + cut * nx
-            points[v, 1] += sy + cut * ny
-            points[v, 2] += sz + cut * nz
+            sx += cut * nx
+            sy += cut * ny
+            sz += cut * nz
+            # and not behind this frame's own plane, where it has one
+            gx, gy, gz = planes[v, 3], planes[v, 4], planes[v, 5]
+            clear = (points[v, 0] - planes[v, 0]) * gx + (points[v, 1] - planes[v, 1]) * gy + \
+                (points[v, 2] - planes[v, 2]) * gz
+            inward = -(sx * gx + sy * gy + sz * gz)
+            cut = max(inward - max(clear, 0.0), 0.0)
+            points[v, 0] += sx + cut * gx
+            points[v, 1] += sy + cut * gy
+            points[v, 2] += sz + cut * gz
     return int(limited.sum())
