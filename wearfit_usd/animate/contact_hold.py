@@ -10,7 +10,9 @@ off the buttocks (CMU punch and jump: separation p95 50-51 mm), the hot
 pants showing over it. A fitted skirt does not do that: the waistband's
 tension holds it on the hips.
 
-:class:`ContactHold` is built once on the dressed frame: the skirt-part
+:class:`ContactHold` is built once on the static dress (``animate`` gives
+it the items dressed on the target's bind pose, as the motion measures
+judge them: a first pose's dress can stand off already): the skirt-part
 vertices that touch the body there (signed clearance ``c0`` below
 ``contact``) and, for each, the skin patch under it (the body triangles
 whose centroid lies within ``patch`` of its closest body point; the patch
@@ -36,8 +38,8 @@ import scipy.sparse as sp
 
 from ..geometry.closest import SurfaceQuery
 
-HOLD_CONTACT = 0.01   # m: vertices this close to the body at frame 0 (or inside) are held
-HOLD_PATCH = 0.06     # m: the skin patch a held vertex is held on (around its frame-0 closest point)
+HOLD_CONTACT = 0.01   # m: vertices this close to the body in the static dress (or inside) are held
+HOLD_PATCH = 0.06     # m: the skin patch a held vertex is held on (around its static closest point)
 HOLD_MAX_PULL = 0.10  # m: the largest pull in one frame
 HOLD_SPREAD = 2       # Jacobi steps spreading the pulls over the neighbours
 
@@ -50,7 +52,7 @@ class ContactHold:
     Parameters
     ----------
     faces : (T, 3) int, the body's triangles.
-    body0 : (N, 3) the body at the dressed frame.
+    body0 : (N, 3) the body of the static dress.
     points0 : (M, 3) the items dressed on it.
     rows : (R,) int, the candidate rows (skirt parts that the binding moves
         directly, not the cloth); those within ``contact`` of the body are held.
@@ -109,7 +111,7 @@ class ContactHold:
 
     def pulls(self, body_points: np.ndarray, points: np.ndarray) -> np.ndarray:
         """(H, 3) the pull of each held vertex this frame (zero where it is no
-        farther from its patch than at frame 0)."""
+        farther from its patch than in the static dress)."""
         self.query.update(np.asarray(body_points, dtype=np.float64))
         x = np.asarray(points, dtype=np.float64)[self.held]
         res = self.query.closest(x, candidates=self.candidates, ring=False)
