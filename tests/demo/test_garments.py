@@ -47,13 +47,14 @@ FAILING = {
     # 1.25 / 3.22 and 1.39 / 2.69, coat 1.25 / 3.55 and 1.60 / 5.38; session 21's, before the first pose's
     # dress was relaxed and the weld's further rounds: dress 1.16 / 2.42 and 1.16 / 1.87, suit 1.19 / 3.59 and
     # 1.35 / 3.24, coat 1.19 / 4.09 and 1.51 / 5.92; session 22's, before the first pose's dress was guarded:
-    # suit arm raise 1.25 / 4.50, coat 1.11 / 3.51 and 1.36 / 11.2)
+    # suit arm raise 1.25 / 4.50, coat 1.11 / 3.51 and 1.36 / 11.2; session 26's, before the weld's third round:
+    # suit 1.12 / 3.95 and 1.26 / 4.50, coat 1.11 / 3.33 and 1.39 / 6.48)
     ("dress", "walk"): "1.10 / 2.36: the bound bodice at the armholes with the swinging arms (was 1.28 / 4.55)",
     ("dress", "arm_raise"): "1.11 / 1.86: the bound bodice at the armpits, lifted with the arms (was 1.44 / 3.29)",
-    ("suit", "walk"): "1.12 / 3.95: the jacket at the armpits with the swinging arms (was 1.53 / 4.45)",
-    ("suit", "arm_raise"): "1.26 / 4.50: the jacket's armpits (was 1.61 / 4.66)",
-    ("coat", "walk"): "1.11 / 3.33: the coat at the armpits (was 1.54 / 7.39)",
-    ("coat", "arm_raise"): "1.39 / 6.48: the coat's armpits (was 2.19 / 19.3)",
+    ("suit", "walk"): "1.12 / 3.94: the jacket at the armpits with the swinging arms (was 1.53 / 4.45)",
+    ("suit", "arm_raise"): "1.25 / 4.50: the jacket's armpits (was 1.61 / 4.66)",
+    ("coat", "walk"): "1.11 / 3.27: the coat at the armpits (was 1.54 / 7.39)",
+    ("coat", "arm_raise"): "1.38 / 6.14: the coat's armpits (was 2.19 / 19.3)",
     # passing: ("pencil_skirt", "walk") 1.11 / 1.25 (1.24 before session 26's contact hold; was 1.19 / 1.51),
     # ("long_hair", "arm_raise") 1.10 / 1.45 (was 1.10 / 1.87), ("long_hair", "walk") 1.10 / 1.27,
     # ("pencil_skirt", "arm_raise") 1.04 / 1.07
