@@ -76,10 +76,7 @@ def cloth_weights(plan) -> np.ndarray:
     pts = np.asarray(plan.ref_points, dtype=np.float64)
     clear = np.asarray(plan.ref_clearance, dtype=np.float64)
     near_region = plan.regions.triangle[plan.ref_foot.triangle] if plan.ref_foot is not None else plan.regions.vertex
-    skirt = np.zeros(m, dtype=bool)
-    for item, sl in zip(plan.items, plan.item_slices()):
-        if item.name in plan.regions.skirt_items:
-            skirt[sl] = True
+    skirt = plan.skirt_mask()
     tight = clear < LOOSE_START
     hips = near_region == R.TORSO
     below = np.ones(m, dtype=bool)   # skirt vertices that may hang (below the hip band)

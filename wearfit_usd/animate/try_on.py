@@ -30,7 +30,6 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ..dress import regions as R
 from ..dress.apply import apply as apply_plan
 from ..dress.apply import dress
 from ..dress.hidden_body import SHOT_DEPTH, SHOT_MAX_GAP, hide_or_drop
@@ -434,16 +433,9 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
     # skirt parts held on the skin they touch in the static dress (their binding's
     # frames sit above the buttocks; contact_hold): the bound rows, not the
     # cloth's, nor rigid items'
-    skirt_items = np.zeros(len(all_base), dtype=bool)
-    if ref_plan.regions is not None:
-        for m, a, b in zip(items, offsets[:-1], offsets[1:]):
-            skirt_items[a:b] = m.name in ref_plan.regions.skirt_items
     hold = None
-    if opt.mode == "bind" and opt.contact_hold and ref_plan.regions is not None:
-        skirt = np.zeros(len(all_base), dtype=bool)
-        for m, a, b in zip(items, offsets[:-1], offsets[1:]):
-            if m.name in ref_plan.regions.skirt_items:
-                skirt[a:b] = np.asarray(ref_plan.regions.bind[a:b]) == R.HIPS
+    if opt.mode == "bind" and opt.contact_hold:
+        skirt = ref_plan.skirt_mask(parts=True)
         if cloth is not None:
             skirt &= cloth.weights <= 0
         if rigid is not None:
@@ -455,6 +447,11 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
             hold = ContactHold(body.faces, rest_body, rest_items, np.flatnonzero(skirt),
                                neighbours=frame_plan.mesh.neighbours)
             hold = hold if hold.active else None
+    # the skirts' free vertices kept by the strain limit off the skin under
+    # them as the cloth left them (hair gained no cover from it, only stretch)
+    floor_rows = ref_plan.skirt_mask() if cloth is not None and strain is not None else None
+    if floor_rows is not None and not floor_rows.any():
+        floor_rows = None
     # vertices joined by sub-millimetre edges in the items as authored move as one (short_edges)
     weld = None
     if opt.mode == "bind":
@@ -533,9 +530,7 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
                 pts[pushed_rows] = push_guard.apply(body_f, pts[pushed_rows])[0]
             elif opt.mode == "bind" and not guarded:
                 pts, _ = guard.apply(body_f, pts)
-            # the skirts' free vertices kept off the skin under them as the
-            # cloth left them (hair gained no cover from it, only stretch)
-            floors = cloth.floors(rows=skirt_items) if cloth is not None and skirt_items.any() else None
+            floors = cloth.floors(rows=floor_rows) if floor_rows is not None else None
             if strain is not None:
                 if pushed_rows is not None:
                     pushed = np.zeros(len(pts), dtype=bool)

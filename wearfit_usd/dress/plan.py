@@ -192,6 +192,14 @@ class DressPlan:
         return {m.name for m, sl in zip(self.items, self.item_slices())
                 if m.name in self.rigid_items and mask[sl].mean() >= RIGID_ITEM_SHARE}
 
+    def skirt_mask(self, parts: bool = False) -> np.ndarray:
+        """(M,) bool: the rows of the items bound as skirts
+        (``regions.skirt_items``); with ``parts`` only their skirt parts
+        (bound to the hips). All False without regions."""
+        if self.regions is None:
+            return np.zeros(len(self.ref_points), dtype=bool)
+        return skirt_rows(self.items, self.offsets, self.regions.skirt_items, self.regions.bind if parts else None)
+
     def item_slices(self) -> list[slice]:
         """The rows of each item in the stacked arrays.
 
@@ -537,6 +545,16 @@ def _group_items(groups: list, items: list[Mesh], offsets: np.ndarray) -> list[s
     return [items[int(np.searchsorted(offsets, gv[0], side="right") - 1)].name for gv, *_ in groups]
 
 
+def skirt_rows(items: list[Mesh], offsets: np.ndarray, skirts, labels: np.ndarray | None = None) -> np.ndarray:
+    """(M,) bool: the stacked rows of the items named in ``skirts``; with
+    ``labels`` (binding labels, :mod:`regions`) only their skirt parts (HIPS)."""
+    mask = np.zeros(int(offsets[-1]), dtype=bool)
+    for item, a, b in zip(items, offsets[:-1], offsets[1:]):
+        if item.name in skirts:
+            mask[a:b] = True if labels is None else np.asarray(labels[a:b]) == R.HIPS
+    return mask
+
+
 def loose_weights(items: list[Mesh], offsets: np.ndarray, skirts: list, clearance: np.ndarray,
                   groups: list, labels: np.ndarray | None = None) -> np.ndarray:
     """How much each vertex's displacement is smoothed (:func:`corrections.looseness`):
@@ -562,11 +580,7 @@ def loose_weights(items: list[Mesh], offsets: np.ndarray, skirts: list, clearanc
     (M,) float array
         0..1.
     """
-    skirt_mask = np.zeros(len(clearance), dtype=bool)
-    for item, a, b in zip(items, offsets[:-1], offsets[1:]):
-        if item.name in skirts:
-            skirt_mask[a:b] = True if labels is None else labels[a:b] == R.HIPS
-    loose = looseness(clearance, skirt_mask)
+    loose = looseness(clearance, skirt_rows(items, offsets, skirts, labels))
     for gv, _, _ in groups:
         loose[gv] = 0.0
     return loose
