@@ -137,6 +137,7 @@ class StrainLimit:
         self._normals0 = self._vn(self.body0)
         self.stats = {"frames": 0, "edges_limited": 0}
         self._caps = self._caps_body = self._caps_normals = None  # the compiled pass's, on the last body
+        self._no_planes = None  # the compiled pass's zero floors (none), kept
         self.compiled = HAVE_NUMBA if compiled is None else bool(compiled and HAVE_NUMBA)
         if not self.compiled:
             # vertex -> edge incidence (CSR rows: item vertices), for the numpy passes' active edges
@@ -218,9 +219,12 @@ class StrainLimit:
                 w[np.asarray(pushed, dtype=bool)] /= HEAVY
             work = points if points.flags.c_contiguous and points.dtype == np.float64 else \
                 np.ascontiguousarray(points, dtype=np.float64)
+            if planes is None:
+                if self._no_planes is None or len(self._no_planes) != len(work):
+                    self._no_planes = np.zeros((len(work), 6))  # no floors: made once, not per call
+                planes = self._no_planes
             self.stats["edges_limited"] += strain_frame(self._rest, body, normals, work, w, self.limit, its, MARGIN,
-                                                        caps, None if planes is None else
-                                                        np.ascontiguousarray(planes, dtype=np.float64))
+                                                        caps, np.ascontiguousarray(planes, dtype=np.float64))
             if work is not points:
                 points[:] = work
             return points
