@@ -215,3 +215,13 @@ def test_relax_first_dress_shortens_a_stretched_first_dress():
     np.testing.assert_array_equal(items[0].points, stretched)  # the input is left as it was
     # dresses that do not match point for point: nothing to relax
     assert relax_first_dress(items, rest[:1], rigid, edges, faces, body, body) is items
+
+
+def test_edge_incidence_lists_each_vertex_s_edges_in_ascending_order():
+    """The compiled pass gathers a vertex's corrections over its own edges in
+    this order: ascending edge index, as one loop over all edges sums them."""
+    from wearfit_usd.kernels import edge_incidence
+    e = np.array([[2, 0], [0, 1], [1, 2], [3, 0]])
+    ptr, idx = edge_incidence(e, 5)
+    rows = [idx[ptr[v]:ptr[v + 1]].tolist() for v in range(5)]
+    assert rows == [[0, 1, 3], [1, 2], [0, 2], [3], []]

@@ -54,7 +54,7 @@ import scipy.sparse as sp
 
 from ..dress.body_stretch import local_triangles, offset_factor, principal_stretches, triangle_grams
 from ..geometry.closest import SurfaceQuery, VertexNormals, point_and_normal
-from ..kernels import HAVE_NUMBA, StrainRest, clear_caps, new_caps, strain_frame
+from ..kernels import HAVE_NUMBA, StrainRest, clear_caps, edge_incidence, new_caps, strain_frame
 
 LIMIT = 1.1        # x the body's own stretch an edge may reach
 ITERATIONS = 16    # Jacobi passes per frame (at most)
@@ -151,7 +151,8 @@ class StrainLimit:
                                 np.ascontiguousarray(self.triangles), f, np.ascontiguousarray(gram),
                                 np.ascontiguousarray(self.foot_tri, dtype=np.int64),
                                 np.ascontiguousarray(self.foot_bary, dtype=np.float64), foot0, normal0,
-                                np.ascontiguousarray(self.clearance0, dtype=np.float64))
+                                np.ascontiguousarray(self.clearance0, dtype=np.float64),
+                                *edge_incidence(self.edges, len(q)))
 
     def allowed(self, body: np.ndarray, idx: np.ndarray, normals: np.ndarray | None = None) -> np.ndarray:
         """(len(idx),) the longest each edge ``self.edges[idx]`` may be on

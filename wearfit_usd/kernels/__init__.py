@@ -36,12 +36,12 @@ from .normals import (
                       vertex_normals,
                       vertex_pseudo_normals_numpy,
 )
-from .strain import StrainCaps, StrainRest, clear_caps, new_caps, strain_frame
+from .strain import StrainCaps, StrainRest, clear_caps, edge_incidence, new_caps, strain_frame
 from .warm import warm_up
 
 __all__ = ["HAVE_NUMBA", "GridArrays", "GuardBody", "GuardState", "RadiusGrid", "add_rows", "assign_rows",
            "binding_eval", "binding_eval_rows", "closest_candidates", "closest_params", "closest_signed",
            "corner_normals_numpy", "diffusion_rhs", "face_normal_sums", "face_normals",
            "guard_estimate", "guard_frame", "similarity_place", "similarity_transforms", "vertex_incidence",
-           "vertex_normals", "vertex_pseudo_normals_numpy", "warm_up", "StrainRest", "strain_frame",
+           "vertex_normals", "vertex_pseudo_normals_numpy", "warm_up", "StrainRest", "strain_frame", "edge_incidence",
            "StrainCaps", "new_caps", "clear_caps"]

@@ -40,6 +40,20 @@ class StrainRest(NamedTuple):
     foot0: np.ndarray
     normal0: np.ndarray
     clear0: np.ndarray
+    inc_ptr: np.ndarray
+    inc_edge: np.ndarray
+
+
+def edge_incidence(edges: np.ndarray, n_points: int) -> tuple[np.ndarray, np.ndarray]:
+    """The edges (E, 2) at each of ``n_points`` vertices as CSR rows:
+    (ptr (n_points + 1,) int64, edge indices (2E,) int64, ascending within
+    a row)."""
+    e = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
+    ends = e.ravel()
+    order = np.argsort(ends, kind="stable")   # stable: a row's edges ascending
+    ptr = np.zeros(n_points + 1, dtype=np.int64)
+    np.cumsum(np.bincount(ends, minlength=n_points), out=ptr[1:])
+    return ptr, (order // 2).astype(np.int64)
 
 
 @jit(inline=True)
@@ -185,22 +199,32 @@ def strain_frame(rest, body, normals, points, w, limit, iterations, margin, caps
 
 @jit
 def _strain_frame(rest, body, normals, points, w, limit, iterations, margin, caps, planes):
-    """:func:`strain_frame`'s passes."""
+    """:func:`strain_frame`'s passes. Each pass: the edges to look at (all
+    first, then those at a vertex the last pass moved: the others keep
+    their length) each store their correction; then each vertex at an
+    edge over its cap gathers its corrections over its own edges in
+    ascending edge order (the Jacobi mean, summed as one loop over all
+    edges would) and moves. Work per pass is that of the active edges and
+    vertices, not of the whole item."""
     n_e = rest.edges.shape[0]
     m = points.shape[0]
     cap, exact, tri_hi, vhi, feet, have_foot = caps
     limited = np.zeros(n_e, dtype=np.bool_)
-    step = np.zeros((m, 3))
-    count = np.zeros(m)
-    moved = np.ones(m, dtype=np.bool_)  # edges with neither end moved last pass keep their length
-    for _ in range(iterations):
-        step[:] = 0.0
-        count[:] = 0.0
-        any_over = False
-        for ei in range(n_e):
+    n_limited = 0
+    over_pass = np.full(n_e, -1, dtype=np.int64)     # the pass in which an edge was over its cap
+    corr = np.empty((n_e, 4))                         # its correction then: f, dx, dy, dz
+    share = np.empty(n_e)                             # and end a's share
+    active = np.empty(n_e, dtype=np.int64)            # the edges the next pass looks at
+    n_active = n_e
+    edge_seen = np.full(n_e, -1, dtype=np.int64)
+    ends = np.empty(m, dtype=np.int64)                # the vertices at an edge over its cap
+    vert_seen = np.full(m, -1, dtype=np.int64)
+    moved = np.empty(m, dtype=np.int64)
+    for it in range(iterations):
+        n_ends = 0
+        for k in range(n_active):
+            ei = k if it == 0 else active[k]
             a, b = rest.edges[ei, 0], rest.edges[ei, 1]
-            if not (moved[a] or moved[b]):
-                continue
             dx = points[b, 0] - points[a, 0]
             dy = points[b, 1] - points[a, 1]
             dz = points[b, 2] - points[a, 2]
@@ -216,33 +240,55 @@ def _strain_frame(rest, body, normals, points, w, limit, iterations, margin, cap
                 exact[ei] = True
                 if not ln > cap[ei]:
                     continue
-            any_over = True
-            limited[ei] = True
+            if not limited[ei]:
+                limited[ei] = True
+                n_limited += 1
             wa, wb = w[a], w[b]
-            sa = wa / max(wa + wb, 1e-300)
-            f = (ln - cap[ei]) / max(ln, 1e-300)
-            step[a, 0] += f * dx * sa
-            step[a, 1] += f * dy * sa
-            step[a, 2] += f * dz * sa
-            step[b, 0] -= f * dx * (1.0 - sa)
-            step[b, 1] -= f * dy * (1.0 - sa)
-            step[b, 2] -= f * dz * (1.0 - sa)
-            if wa > 0.0:
-                count[a] += 1.0
-            if wb > 0.0:
-                count[b] += 1.0
-        if not any_over:
+            share[ei] = wa / max(wa + wb, 1e-300)
+            corr[ei, 0] = (ln - cap[ei]) / max(ln, 1e-300)
+            corr[ei, 1] = dx
+            corr[ei, 2] = dy
+            corr[ei, 3] = dz
+            over_pass[ei] = it
+            if vert_seen[a] != it:
+                vert_seen[a] = it
+                ends[n_ends] = a
+                n_ends += 1
+            if vert_seen[b] != it:
+                vert_seen[b] = it
+                ends[n_ends] = b
+                n_ends += 1
+        if n_ends == 0:
             break
-        for v in range(m):
-            moved[v] = count[v] > 0.0
-            if not moved[v]:
+        n_moved = 0
+        for k in range(n_ends):
+            v = ends[k]
+            sx, sy, sz, cnt = 0.0, 0.0, 0.0, 0.0
+            for j in range(rest.inc_ptr[v], rest.inc_ptr[v + 1]):
+                ei = rest.inc_edge[j]
+                if over_pass[ei] != it:
+                    continue
+                f, sa = corr[ei, 0], share[ei]
+                if rest.edges[ei, 0] == v:
+                    sx += f * corr[ei, 1] * sa
+                    sy += f * corr[ei, 2] * sa
+                    sz += f * corr[ei, 3] * sa
+                else:
+                    sx -= f * corr[ei, 1] * (1.0 - sa)
+                    sy -= f * corr[ei, 2] * (1.0 - sa)
+                    sz -= f * corr[ei, 3] * (1.0 - sa)
+                if w[v] > 0.0:
+                    cnt += 1.0
+            if not cnt > 0.0:
                 continue
-            sx, sy, sz = step[v, 0] / count[v], step[v, 1] / count[v], step[v, 2] / count[v]
+            moved[n_moved] = v
+            n_moved += 1
+            sx, sy, sz = sx / cnt, sy / cnt, sz / cnt
             # no move into the body: the skin under v is its rest closest triangle on this body
             t = rest.foot_tri[v]
-            i, j, k = rest.faces[t, 0], rest.faces[t, 1], rest.faces[t, 2]
+            i, j, k2 = rest.faces[t, 0], rest.faces[t, 1], rest.faces[t, 2]
             e1x, e1y, e1z = body[j, 0] - body[i, 0], body[j, 1] - body[i, 1], body[j, 2] - body[i, 2]
-            e2x, e2y, e2z = body[k, 0] - body[i, 0], body[k, 1] - body[i, 1], body[k, 2] - body[i, 2]
+            e2x, e2y, e2z = body[k2, 0] - body[i, 0], body[k2, 1] - body[i, 1], body[k2, 2] - body[i, 2]
             nx = e1y * e2z - e1z * e2y
             ny = e1z * e2x - e1x * e2z
             nz = e1x * e2y - e1y * e2x
@@ -270,4 +316,14 @@ def _strain_frame(rest, body, normals, points, w, limit, iterations, margin, cap
             points[v, 0] += sx + cut * gx
             points[v, 1] += sy + cut * gy
             points[v, 2] += sz + cut * gz
-    return int(limited.sum())
+        # the next pass: the edges at the vertices this one moved
+        n_active = 0
+        for k in range(n_moved):
+            v = moved[k]
+            for j in range(rest.inc_ptr[v], rest.inc_ptr[v + 1]):
+                ei = rest.inc_edge[j]
+                if edge_seen[ei] != it:
+                    edge_seen[ei] = it
+                    active[n_active] = ei
+                    n_active += 1
+    return n_limited
