@@ -334,6 +334,11 @@ def test_longskirt_walk_keeps_the_legs_inside(tmp_path):
     assert np.percentile(ratios, 99, axis=1).max() < 2.5
     assert ratios.max() < 8.0
     assert rep.worst_frame_penetration < 0.01
+    # a straight skirt to the ankles: its hem (1.19 m) cannot go round the
+    # legs in a full stride (the walk's first frame: 1.74 m), and says so
+    hem = rep.narrow_hems["long_skirt"]
+    assert 1.1 < hem["hem_m"] < 1.3 and hem["outline_max_m"] > 1.1 * hem["hem_m"]
+    assert 0 < hem["frames"] < rep.frames and list(rep.narrow_hems) == ["long_skirt"]
 
 
 def test_longskirt_walk_first_frame_keeps_the_calf_inside(tmp_path):

@@ -77,6 +77,8 @@ def test_items_follow_the_walk_and_stay_outside(walk_shot):
     # new penetrations in the worst measured frame (issue target: <= 1 %)
     assert len(rep.per_frame_penetration) >= 10
     assert rep.worst_frame_penetration <= 0.01
+    # no skirt, no hem to measure against the legs
+    assert rep.narrow_hems == {} and rep.as_dict()["narrow_hems"] == {}
 
 
 def test_lbs_baseline_writes_skinned_items(tmp_path, ref_male, heavy_male, walk):

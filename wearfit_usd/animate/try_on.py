@@ -36,6 +36,7 @@ from ..dress.hidden_body import SHOT_DEPTH, SHOT_MAX_GAP, hide_or_drop
 from ..dress.item_weights import PIECE_WEIGHT, SKINNED_SUFFIX, rigid_pieces, skinned_items
 from ..dress.plan import DressPlan
 from ..dress.plan import plan as plan_dress
+from ..dress.regions import REGION_NAMES, vertex_regions
 from ..errors import NonFiniteError, USDInputError
 from ..fit.body_fit import fit_character
 from ..geometry.closest import SurfaceQuery
@@ -51,6 +52,7 @@ from ..progress import info, progress
 from .cloth import ClothSolver, PushCarry
 from .contact_hold import ContactHold
 from .frame_eval import FrameEvaluator
+from .hem_span import SLACK, HemSpan, narrow_frames
 from .loose import cloth_weights
 from .measures import MEASURES, MotionMeasures, worst_frames
 from .penetration_guard import PenetrationGuard
@@ -107,6 +109,9 @@ class AnimateReport:
     skinned_rigid_items: list = field(default_factory=list)  # rigid items and skin decals skinned (bind mode)
     dress_pose: str = ""  # the pose frame 0 was dressed in: "first" or "bind" (AnimateOptions.dress_pose resolved)
     strain_limited_edges: int = 0  # item edges the strain limit shortened, summed over the frames (-1: off)
+    # skirts whose hem cannot go round the legs at its height in some frames
+    # (animate.hem_span): {item: {"hem_m", "outline_max_m", "frames", "first", "last", "worst"}}
+    narrow_hems: dict = field(default_factory=dict)
 
     def as_dict(self) -> dict:
         return {"frames": self.frames, "fps": self.fps, "timings_s": self.timings,
@@ -116,7 +121,8 @@ class AnimateReport:
                 "motion_per_frame": self.motion_series,
                 "cloth_vertices": self.cloth_vertices, "skinned_items": self.skinned_items,
                 "skinned_rigid_items": self.skinned_rigid_items, "dress_pose": self.dress_pose,
-                "strain_limited_edges": self.strain_limited_edges, "mapping": self.mapping}
+                "strain_limited_edges": self.strain_limited_edges, "narrow_hems": self.narrow_hems,
+                "mapping": self.mapping}
 
 
 #: a target body whose edges (99th percentile) are this many times the
@@ -465,6 +471,10 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
         measures = _motion_measures(target, bind_dressed, ref_plan)
         rep.timings["measure_setup"] = time.perf_counter() - t0
 
+    hems = _hem_spans(target, ref_plan, bind_dressed.items if bind_dressed is not None else items,
+                      target.body.points if bind_dressed is not None else base_body)
+    hem_outlines = {name: np.zeros(n_frames) for name in hems}
+
     skinned = None
     if items_mode != "points":
         skinned = _skinned_copies(skin_src, SKINNED_SUFFIX if items_mode == "both" else "")
@@ -546,6 +556,8 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
                         strain(body_f, pts, pushed, iterations=WELD_ROUND_PASSES, planes=floors)
                         weld(pts)
             check_finite_points(pts, f, rt, motion.path)
+            for name, span in hems.items():
+                hem_outlines[name][f] = span(body_f)
             td = time.perf_counter()
             t_pen += td - tc
             if opt.measure_every and (f % opt.measure_every == 0 or f == n_frames - 1):
@@ -566,6 +578,7 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
     t_write += time.perf_counter() - tw
     rep.worst_frame_penetration = max(rep.per_frame_penetration) if rep.per_frame_penetration else 0.0
     rep.strain_limited_edges = strain.stats["edges_limited"] if strain is not None else -1
+    _report_narrow_hems(rep, hems, hem_outlines, rt)
     if measures is not None:
         rep.motion_worst = worst_frames(rep.motion_series, rep.measured_frames)
     rep.timings.update({"lbs_total": t_lbs, "evaluate_total": t_eval, "penetration_total": t_pen,
@@ -648,6 +661,48 @@ def relax_first_dress(items: list, rest_items: list, rigid: np.ndarray, edges: n
     limit(body, pts)
     offsets = np.concatenate([[0], np.cumsum([m.n_points for m in items])])
     return [m.copy_with_points(pts[offsets[i]:offsets[i + 1]]) for i, m in enumerate(items)]
+
+
+def _hem_spans(target: Character, ref_plan: DressPlan, dressed: list, body0: np.ndarray) -> dict:
+    """{skirt item: :class:`hem_span.HemSpan`} for the reference's skirts
+    (bound from the hips, ``regions.skirt_items``) as dressed statically
+    (``dressed``, meshes) on ``body0`` (N, 3), the target's legs and torso by
+    its skin weights; empty when there are none or the body has no skin."""
+    if ref_plan.regions is None or not ref_plan.regions.skirt_items or target.body.joint_indices is None:
+        return {}
+    labels = vertex_regions(target.body, target.skeleton)
+    legs = np.isin(labels, (REGION_NAMES.index("left_leg"), REGION_NAMES.index("right_leg")))
+    torso = labels == REGION_NAMES.index("torso")
+    if not legs.any() or not torso.any():
+        return {}
+    out = {}
+    for m in dressed:
+        if m.name in ref_plan.regions.skirt_items:
+            try:
+                out[m.name] = HemSpan(m.points, m.faces, body0, legs, torso)
+            except ValueError:
+                continue   # no hem (a closed mesh)
+    return out
+
+
+def _report_narrow_hems(rep: AnimateReport, hems: dict, outlines: dict, rt) -> None:
+    """Record (and say) the frames in which a skirt's hem cannot go round
+    the legs at its height (:mod:`hem_span`): there it rides up and the
+    legs show, whatever the dressing does."""
+    for name, span in hems.items():
+        o = outlines[name]
+        bad = narrow_frames(o, span.hem)
+        if len(bad) == 0:
+            continue
+        worst = int(bad[np.argmax(o[bad])])
+        rep.narrow_hems[name] = {"hem_m": span.hem, "outline_max_m": float(o[worst]), "frames": int(len(bad)),
+                                 "first": int(bad[0]), "last": int(bad[-1]), "worst": worst,
+                                 "hem_height_m": span.height0}
+        info(f"{name}: its hem ({span.hem:.2f} m round, {span.height0:.2f} m over the floor at rest) cannot go "
+             f"round the legs at its height in {len(bad)} of {len(o)} frames (output frames {bad[0]}-{bad[-1]}; "
+             f"the legs' outline up to {o[worst]:.2f} m at frame {worst}, clip frame "
+             f"{float(rt.source_frames[worst]):g}; the cloth stretches {SLACK:g}x at most): a skirt this narrow "
+             f"rides up there and the legs below it show (coverage loss)")
 
 
 def _bind_dress(reference: Character, target: Character, dressed, opt: AnimateOptions, ref_plan):
