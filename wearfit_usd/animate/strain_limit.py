@@ -33,8 +33,11 @@ the clips): stretch p99 of the long skirt 1.32 -> 1.15,
 ``female_casualsuit02`` 1.45 -> 1.18, ``male_casualsuit01`` 1.29 -> 1.15;
 new penetrations 0.25 -> 0.41 %, 0.68 -> 0.85 %, 0.31 -> 0.35 % (0.60,
 0.96, 0.37 % when moves could go into the body). The compiled pass
-(:func:`kernels.strain.strain_frame`) takes 1.2 ms a frame for
-``ref_male``'s 25,101 item edges, this numpy twin 17 ms (8 passes).
+(:func:`kernels.strain.strain_frame`; after its first pass it looks only at
+the edges of the vertices it moved) takes 2.2 ms for a frame's first call
+on ``ref_male``'s 28,258 item edges (the allowed lengths computed) and
+0.75-0.8 ms for each round after the weld (CMU walk, medians, session 27),
+this numpy twin 17 ms (8 passes).
 16 passes instead of 8 (every-clip sweep, same tree otherwise): figures
 over issue 17's limits 151 -> 137, the worst of all clips' stretch p99 /
 max of the long skirt 1.66 / 2.57 -> 1.59 / 1.98, ``male_casualsuit01``
