@@ -440,3 +440,36 @@ def test_walk_report_matches_a_direct_computation(usd_dir, bvh_dir, tmp_path):
             pa = np.array(UsdGeom.Mesh(a.GetPrimAtPath(f"/Root/Items/{n}")).GetPointsAttr().Get(t))
             pb = np.array(UsdGeom.Mesh(b.GetPrimAtPath(f"/Root/Items/{n}")).GetPointsAttr().Get(t))
             assert np.array_equal(pa, pb)
+
+
+# -- a low-poly body: coverage probed over its triangles ------------------------
+def test_coverage_probes_are_a_lattice_inside_each_large_triangle():
+    from wearfit_usd.animate.measures import coverage_probes
+    pts = np.array([[0.0, 0, 0], [0.10, 0, 0], [0.0, 0.10, 0], [0.0, 0, 0.01], [0.01, 0, 0.01], [0, 0.01, 0.01]])
+    faces = np.array([[0, 1, 2], [3, 4, 5]])
+    tri, bary = coverage_probes(pts, faces, 0.02)
+    # the 10 cm x 14 cm triangle: ceil(14.1 / 2) = 8 steps, (8-1)(8-2)/2 = 21 interior points; the 1 cm one none
+    assert len(tri) == 21 and set(tri.tolist()) == {0}
+    np.testing.assert_allclose(bary.sum(axis=1), 1.0)
+    assert bary.min() >= 1 / 8 - 1e-12
+    p = np.einsum("sc,sci->si", bary, pts[faces[tri]])
+    d = np.linalg.norm(p[:, None] - p[None], axis=2) + np.eye(len(p))
+    assert d.min(axis=1).max() <= 0.02 + 1e-12   # each has a neighbour within the spacing
+    assert len(coverage_probes(pts, faces, 1.0)[0]) == 0
+
+
+def test_a_low_poly_body_measures_coverage_over_its_faces():
+    """A 40 cm plane of two triangles (median edge 40 cm): a 6 cm patch 5 mm
+    over its middle covers no body vertex, yet it covers the body; moved 10
+    cm up it covers nothing (loss 100 %), slid 2 cm along the plane half of
+    its probes stay covered."""
+    body = np.array([[-0.2, -0.2, 0.0], [0.2, -0.2, 0.0], [0.2, 0.2, 0.0], [-0.2, 0.2, 0.0]])
+    bf = np.array([[0, 1, 2], [0, 2, 3]])
+    patch, pf = grid(7, 7, -0.03, -0.03, 0.01, z=0.005)
+    mm = MotionMeasures(bf, body, [("patch", patch, pf)])
+    n_probe = len(mm.covered[0])
+    assert n_probe >= 4 and mm.covered[0].min() >= len(body)   # probes on the faces, no vertex
+    assert mm(body, patch)[0]["coverage_loss_pct"] == pytest.approx(0.0)
+    assert mm(body, patch + [0.0, 0.0, 0.1])[0]["coverage_loss_pct"] == pytest.approx(100.0)
+    slid = mm(body, patch + [0.03, 0.0, 0.0])[0]["coverage_loss_pct"]
+    assert 20.0 < slid < 80.0

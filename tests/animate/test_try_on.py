@@ -367,6 +367,10 @@ def test_skin_decals_stay_on_a_coarse_body(tmp_path, ref_female, walk, data_dir)
     w = rep.motion_worst["eyebrow001"]
     assert w["new_pen_pct"]["value"] < 1.0, w
     assert w["separation_p95_mm"]["value"] < 3.0, w
+    # the eyebrows cover no vertex of the box head (coverage None before):
+    # its coverage is probed over the faces (animate.measures.coverage_probes,
+    # 2 cm apart); measured 20 %, one of their few probes at frame 0
+    assert w["coverage_loss_pct"]["value"] is not None and w["coverage_loss_pct"]["value"] < 50.0, w
 
 
 def test_sub_millimetre_edges_hold_together(tmp_path, ref_female_longskirt, bvh_dir):

@@ -28,7 +28,11 @@ frame. Per item and per frame:
   covers in the static dress (a ray from the vertex along its normal meets
   the item between ``-inset`` and ``reach`` metres), the percentage it no
   longer covers in this frame (tears, the body poking through, the item
-  sliding off). None for items that cover no body vertex. Where the static
+  sliding off). None for items that cover no body vertex. On a low-poly
+  body (median edge over ``COARSE_EDGE``) the vertices are too few to say
+  it (Khronos' RiggedFigure: 370, a hat covering 2 of them): points spread
+  over its triangles at most ``PROBE_SPACING`` apart (their rays along the
+  face normal) are probes beside the vertices (:func:`coverage_probes`). Where the static
   hit is on a hanging part, the ray in the frame reaches ``hanging_reach``
   (50 cm): a skirt swinging 10 cm off the back leg still covers it (the
   skin is not seen from outside along its normal), a leg through the skirt
@@ -78,8 +82,41 @@ from ..geometry.closest import SurfaceQuery, VertexNormals, point_and_normal
 from ..geometry.mesh import edges, similarity_fit
 from ..geometry.rays import cast_rays, ray_triangle
 
+#: m: a body whose median edge is longer than this is low-poly: its coverage
+#: is probed over its triangles too (MakeHuman bodies 6-7 mm, a remeshed
+#: one 10 mm, GDQuest's mannequin 14 mm, Khronos' RiggedFigure 108 mm)
+COARSE_EDGE = 0.02
+#: m: the most the coverage probes on a low-poly body's triangles are apart
+PROBE_SPACING = 0.02
+
 MEASURES = ("stretch_p99", "stretch_max", "separation_p95_mm", "separation_max_mm", "coverage_loss_pct",
             "rigid_mm", "new_pen_pct", "through_pct", "coverage_folded_pct", "pen_folded_pct")
+
+
+def coverage_probes(points: np.ndarray, faces: np.ndarray, spacing: float) -> tuple[np.ndarray, np.ndarray]:
+    """Points spread over each triangle (T, 3) of a mesh (N, 3) at most
+    ``spacing`` apart along its longest edge: the interior points of a
+    barycentric lattice of n = ceil(longest edge / spacing) steps (a
+    triangle with n < 3 has none; its corners are the mesh's vertices).
+
+    Returns
+    -------
+    (triangle (S,) int64, bary (S, 3)): each point's triangle and barycentrics.
+    """
+    f = np.asarray(faces, dtype=np.int64)
+    p = np.asarray(points, dtype=np.float64)
+    v = p[f]
+    longest = np.max(np.linalg.norm(v - np.roll(v, -1, axis=1), axis=2), axis=1)
+    steps = np.ceil(longest / float(spacing) - 1e-9).astype(np.int64)
+    tris, barys = [np.zeros(0, dtype=np.int64)], [np.zeros((0, 3))]
+    for n in np.unique(steps[steps >= 3]):   # one lattice per step count, not per triangle
+        i, j = np.meshgrid(np.arange(1, n), np.arange(1, n), indexing="ij")
+        ok = (i + j) <= n - 1
+        lat = np.stack([i[ok], j[ok], n - i[ok] - j[ok]], axis=1) / float(n)
+        t = np.flatnonzero(steps == n)
+        tris.append(np.repeat(t, len(lat)))
+        barys.append(np.tile(lat, (len(t), 1)))
+    return np.concatenate(tris), np.concatenate(barys)
 
 
 @dataclass(frozen=True)
@@ -87,7 +124,7 @@ class MotionLimits:
     """Upper limits of the worst frame of each motion measure (issue 17)."""
     stretch_p99: float = 1.15          # x the body's own stretch
     stretch_max: float = 1.5           # x the body's own stretch
-    coverage_loss_pct: float = 2.0     # % of the statically covered body vertices
+    coverage_loss_pct: float = 2.0     # % of the statically covered body vertices (probes)
     separation_p95_mm: float = 15.0    # items that touch the body
     rigid_mm: float = 2.0              # from the best similarity
     new_pen_pct: float = 1.0           # % of the item vertices outside in the static dress
@@ -180,8 +217,16 @@ class MotionMeasures:
         self.contact_mask = (self.clearance0 < self.contact) & ~self.hanging
         self.outside0 = self.clearance0 > 0.0
         self.under, self.over = self._layers(float(layer_reach), float(layer_gap))
-        # coverage: the body vertices each item covers statically, and the hit triangle
+        # coverage: the body vertices (and on a low-poly body the probes over
+        # its triangles) each item covers statically, and the hit triangle
         n0 = self.normals(self.body0)
+        be = edges(self.faces)
+        lengths = np.linalg.norm(self.body0[be[:, 1]] - self.body0[be[:, 0]], axis=1)
+        coarse = len(be) > 0 and float(np.median(lengths)) > COARSE_EDGE
+        self.probe_tri, self.probe_bary = (coverage_probes(self.body0, self.faces, PROBE_SPACING) if coarse else
+                                           (np.zeros(0, dtype=np.int64), np.zeros((0, 3))))
+        all_probes = np.arange(len(self.body0) + len(self.probe_tri))
+        o0, d0 = self.probes(all_probes, self.body0, n0)
         # per item: the triangles sharing a vertex with each triangle (CSR rows)
         self.rings = []
         for f, n in zip(self.item_faces, sizes):
@@ -193,17 +238,36 @@ class MotionMeasures:
         self.covered, self.cover_tri, self.cover_t = [], [], []
         for i in range(len(items)):
             sl = self._slice(i)
-            hit = cast_rays(self.body0, n0, self.items0[sl], self.item_faces[i], -self.inset, self.reach)
+            hit = cast_rays(o0, d0, self.items0[sl], self.item_faces[i], -self.inset, self.reach)
             v = np.flatnonzero(hit >= 0)
             self.covered.append(v)
             self.cover_tri.append(hit[v])
             tri = self.items0[sl][self.item_faces[i][hit[v]]]
-            self.cover_t.append(ray_triangle(self.body0[v], n0[v], tri[:, 0], tri[:, 1], tri[:, 2],
+            self.cover_t.append(ray_triangle(o0[v], d0[v], tri[:, 0], tri[:, 1], tri[:, 2],
                                              -self.inset, self.reach)[1])
         # per item: the frame's reach of each covered body vertex's ray
         self.cover_reach = [np.where(self.hanging[self._slice(i)][self.item_faces[i][t]].any(axis=1),
                                      max(self.hanging_reach, self.reach), self.reach)
                             for i, t in enumerate(self.cover_tri)]
+
+    def probes(self, idx: np.ndarray, body_points: np.ndarray, body_normals: np.ndarray):
+        """Origins and unit directions (len(idx), 3) of the coverage probes
+        ``idx`` on a body (N, 3) with unit vertex normals (N, 3): probe
+        v < N is body vertex v along its normal, probe N + s the point s of
+        :attr:`probe_tri`/:attr:`probe_bary` along its triangle's normal."""
+        idx = np.asarray(idx, dtype=np.int64)
+        n = len(body_points)
+        o = np.empty((len(idx), 3))
+        d = np.empty((len(idx), 3))
+        vert = idx < n
+        o[vert], d[vert] = body_points[idx[vert]], body_normals[idx[vert]]
+        s = idx[~vert] - n
+        if len(s):
+            tri = body_points[self.faces[self.probe_tri[s]]]
+            o[~vert] = np.einsum("sc,sci->si", self.probe_bary[s], tri)
+            fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+            d[~vert] = fn / np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-300)
+        return o, d
 
     def _layers(self, reach: float, gap: float) -> tuple[np.ndarray, np.ndarray]:
         """Item vertices under another item in the static dress (U,) and the
@@ -248,16 +312,17 @@ class MotionMeasures:
 
     def coverage_loss(self, i: int, body_points: np.ndarray, body_normals: np.ndarray,
                       item_points: np.ndarray, folds: bool = True):
-        """Percent of item i's statically covered body vertices not covered
-        now; body_points/body_normals (N, 3) (unit normals), item_points
-        (M_i, 3) this item's points. None if it covers nothing. With
-        ``folds`` (the default) returns (loss, folded): the vertices in a
-        fold (see the module docstring) are counted in ``folded``, not lost."""
+        """Percent of item i's statically covered body vertices (probes on a
+        low-poly body) not covered now; body_points/body_normals (N, 3)
+        (unit vertex normals), item_points (M_i, 3) this item's points.
+        None if it covers nothing. With ``folds`` (the default) returns
+        (loss, folded): the probes in a fold (see the module docstring) are
+        counted in ``folded``, not lost."""
         v = self.covered[i]
         if len(v) == 0:
             return (None, None) if folds else None
         f = self.item_faces[i]
-        o, d = body_points[v], body_normals[v]
+        o, d = self.probes(v, body_points, body_normals)
         reach = self.cover_reach[i]
         tri = item_points[f[self.cover_tri[i]]]
         # the static hit triangle first (it follows the item), then the
