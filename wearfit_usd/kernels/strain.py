@@ -1,13 +1,16 @@
 """The strain limit's per-frame pass (:mod:`animate.strain_limit`), compiled.
 
-One loop over the item edges per Jacobi pass: an edge longer than
+Per Jacobi pass, a loop over the edges that can be over (all in the first
+pass, then those at a vertex the last pass moved): an edge longer than
 ``limit`` x its rest length gets its allowed length (computed once per
 frame, from the principal stretches of the body triangles under its ends
 and the offset factor of its clearance, as
 :func:`dress.body_stretch.principal_stretches` and
 :func:`dress.body_stretch.offset_factor` compute them), and one over its
-allowed length moves its ends toward each other; then every moved vertex
-takes the mean of its moves, cut where it would go into the body. The
+allowed length moves its ends toward each other; then every vertex at such
+an edge takes the mean of its moves (gathered over its own edges in
+ascending order, as the full loop summed them), cut where it would go into
+the body. The
 numpy twin is :meth:`animate.strain_limit.StrainLimit` itself (its
 ``compiled=False`` path); a test runs both.
 """
