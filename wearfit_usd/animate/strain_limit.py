@@ -142,11 +142,11 @@ class StrainLimit:
         self._caps = self._caps_body = self._caps_normals = None  # the compiled pass's, on the last body
         self._no_planes = None  # the compiled pass's zero floors (none), kept
         self.compiled = HAVE_NUMBA if compiled is None else bool(compiled and HAVE_NUMBA)
+        # vertex -> edge incidence (CSR rows: item vertices), the passes' active edges in both paths
+        inc_ptr, inc_edge = edge_incidence(self.edges, len(q))
         if not self.compiled:
-            # vertex -> edge incidence (CSR rows: item vertices), for the numpy passes' active edges
-            m, ne = len(q), len(self.edges)
-            self._incidence = sp.csr_matrix((np.ones(2 * ne), (self.edges.T.ravel(), np.tile(np.arange(ne), 2))),
-                                            shape=(m, ne))
+            self._incidence = sp.csr_matrix((np.ones(len(inc_edge)), inc_edge, inc_ptr),
+                                            shape=(len(q), len(self.edges)))
         f = self.faces
         gram = triangle_grams(self.body0, f)
         foot0, normal0 = point_and_normal(self.body0, self._normals0, f, self.foot_tri, self.foot_bary)
@@ -154,8 +154,7 @@ class StrainLimit:
                                 np.ascontiguousarray(self.triangles), f, np.ascontiguousarray(gram),
                                 np.ascontiguousarray(self.foot_tri, dtype=np.int64),
                                 np.ascontiguousarray(self.foot_bary, dtype=np.float64), foot0, normal0,
-                                np.ascontiguousarray(self.clearance0, dtype=np.float64),
-                                *edge_incidence(self.edges, len(q)))
+                                np.ascontiguousarray(self.clearance0, dtype=np.float64), inc_ptr, inc_edge)
 
     def allowed(self, body: np.ndarray, idx: np.ndarray, normals: np.ndarray | None = None) -> np.ndarray:
         """(len(idx),) the longest each edge ``self.edges[idx]`` may be on
