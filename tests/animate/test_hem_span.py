@@ -4,7 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from wearfit_usd.animate.hem_span import HemSpan, boundary_loops, narrow_frames, outline
+from wearfit_usd.animate.hem_span import HemSpan, narrow_frames, outline
+from wearfit_usd.geometry.mesh import boundary_loops
 
 
 def tube(radius, y0, y1, n=48, rows=6, centre=(0.0, 0.0)):

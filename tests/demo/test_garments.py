@@ -26,9 +26,8 @@ from wearfit_usd.demo.samples import (
     make_target,
     motion_path,
 )
-from wearfit_usd.demo.samples.garments import boundary_loops
 from wearfit_usd.geometry.closest import signed_distance
-from wearfit_usd.geometry.mesh import edges, nondegenerate
+from wearfit_usd.geometry.mesh import boundary_loops, edges, nondegenerate
 
 GARMENTS = list(GARMENT_CLEARANCE)
 #: openings (boundary loops) of each garment: hems, cuffs, neck, face

@@ -25,40 +25,10 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
+from ..geometry.mesh import boundary_loops
+
 SLACK = 1.1     # x: the most the cloth's edges may stretch (strain_limit.LIMIT)
 SLAB = 0.02     # m: half the height of the slice of the legs at the hem's height
-
-
-def boundary_loops(faces: np.ndarray) -> list[np.ndarray]:
-    """The boundary loops of a triangle mesh (F, 3): each an (L,) int array
-    of vertices in order. Edges used by one face only; a vertex where two
-    loops touch is walked through once per loop."""
-    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
-    half = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
-    key = np.sort(half, axis=1)
-    _, inv, count = np.unique(key, axis=0, return_inverse=True, return_counts=True)
-    border = half[count[inv.ravel()] == 1]
-    nxt: dict[int, list[int]] = {}
-    for a, b in border.tolist():
-        nxt.setdefault(a, []).append(b)
-    loops = []
-    while nxt:
-        start = next(iter(nxt))
-        loop, v = [start], start
-        while True:
-            outs = nxt.get(v)
-            if not outs:
-                break
-            w = outs.pop()
-            if not outs:
-                del nxt[v]
-            if w == start:
-                break
-            loop.append(w)
-            v = w
-        if len(loop) >= 3:
-            loops.append(np.asarray(loop, dtype=np.int64))
-    return loops
 
 
 def outline(points: np.ndarray) -> float:

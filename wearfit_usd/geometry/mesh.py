@@ -2,6 +2,7 @@
 
 - :func:`adjacency`, :func:`components`, :func:`edges`: vertex adjacency,
   connected components and unique edges of a triangle mesh;
+  :func:`boundary_loops`: the ordered open rims of a polygon mesh;
   :func:`edge_length_percentile`: how long its edges run;
 - :func:`nondegenerate`: the one test for zero-area triangles;
 - :func:`similarity_fit`: the one best-fit similarity (Umeyama 1991), with
@@ -71,6 +72,51 @@ def edges(faces: np.ndarray) -> np.ndarray:
     n = int(e.max()) + 1
     key = np.unique(e[:, 0] * n + e[:, 1])  # 1-D keys: ~10x faster than unique(axis=0), same order
     return np.stack([key // n, key % n], axis=1)
+
+
+def boundary_loops(faces: np.ndarray) -> list[np.ndarray]:
+    """Ordered boundary loops of a polygon mesh, each walked along its faces'
+    winding: edge ``a -> b`` of a face whose undirected edge no other face
+    has (a hem, a neck opening); a loop starts at its smallest vertex, the
+    loops in the order of those. A vertex where two loops touch is walked
+    through once per loop.
+
+    Parameters
+    ----------
+    faces : (F, k) int vertex indices (triangles, quads).
+
+    Returns
+    -------
+    list of (L,) int64 vertex loops (at least 3 vertices each).
+    """
+    f = np.asarray(faces, dtype=np.int64)
+    if f.size == 0:
+        return []
+    a = f.ravel()
+    b = np.roll(f, -1, axis=1).ravel()
+    n = int(f.max()) + 1
+    key = np.minimum(a, b) * n + np.maximum(a, b)
+    _, inv, count = np.unique(key, return_inverse=True, return_counts=True)
+    open_ = count[inv.ravel()] == 1
+    nxt: dict[int, list[int]] = {}
+    for u, v in zip(a[open_].tolist(), b[open_].tolist()):
+        nxt.setdefault(u, []).append(v)
+    loops = []
+    for start in sorted(nxt):
+        while nxt.get(start):   # a vertex on two loops starts (or joins) both
+            loop, v = [start], start
+            while True:
+                outs = nxt.get(v)
+                if not outs:
+                    break
+                w = outs.pop(0)
+                if w == start:
+                    break
+                loop.append(w)
+                v = w
+            if len(loop) >= 3:
+                loops.append(np.asarray(loop, dtype=np.int64))
+    return loops
 
 
 def edge_length_percentile(points: Points, faces: Faces, q: float = 99.0) -> float:

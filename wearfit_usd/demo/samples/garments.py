@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ...geometry.mesh import boundary_loops
 from ...model import Character, Mesh, Primvar
 from .body import JOINT_NAMES, body_params, layout, make_body
 from .implicit import Solid, relax_on_surface
@@ -122,39 +123,6 @@ def cylindrical_uv(points: np.ndarray, polys: list[np.ndarray], axis_z: float = 
     values, idx = np.unique(uv, axis=0, return_inverse=True)
     return Primvar("st", "texCoord2f[]", "faceVarying", values.astype(np.float32),
                    idx.ravel().astype(np.int64))
-
-
-def boundary_loops(quads: np.ndarray) -> list[np.ndarray]:
-    """Ordered boundary loops of a quad mesh, each walked along its quads'
-    winding (edge ``a -> b`` of a quad whose twin ``b -> a`` is missing).
-
-    Parameters
-    ----------
-    quads : (Q, 4) int vertex indices.
-
-    Returns
-    -------
-    list of (L,) int64 vertex loops.
-    """
-    a = quads.ravel()
-    b = np.roll(quads, -1, axis=1).ravel()
-    n = int(quads.max()) + 1
-    key = a * n + b
-    twin = np.isin(b * n + a, key)
-    nxt = dict(zip(a[~twin].tolist(), b[~twin].tolist()))
-    loops, seen = [], set()
-    for start in sorted(nxt):
-        if start in seen:
-            continue
-        loop = [start]
-        seen.add(start)
-        v = nxt[start]
-        while v != start:
-            loop.append(v)
-            seen.add(v)
-            v = nxt[v]
-        loops.append(np.array(loop, dtype=np.int64))
-    return loops
 
 
 def drop_slivers(points: np.ndarray, quads: np.ndarray, rel_area: float = 0.02):
