@@ -79,7 +79,7 @@ from scipy.spatial import cKDTree
 from ..dress.body_stretch import local_triangles, stretch_range, vertex_stretch
 from ..errors import WearfitError
 from ..geometry.closest import SurfaceQuery, VertexNormals, point_and_normal
-from ..geometry.mesh import edges, similarity_fit
+from ..geometry.mesh import edge_length_percentile, edges, similarity_fit
 from ..geometry.rays import cast_rays, ray_triangle
 
 #: m: a body whose median edge is longer than this is low-poly: its coverage
@@ -220,9 +220,7 @@ class MotionMeasures:
         # coverage: the body vertices (and on a low-poly body the probes over
         # its triangles) each item covers statically, and the hit triangle
         n0 = self.normals(self.body0)
-        be = edges(self.faces)
-        lengths = np.linalg.norm(self.body0[be[:, 1]] - self.body0[be[:, 0]], axis=1)
-        coarse = len(be) > 0 and float(np.median(lengths)) > COARSE_EDGE
+        coarse = edge_length_percentile(self.body0, self.faces, 50.0) > COARSE_EDGE
         self.probe_tri, self.probe_bary = (coverage_probes(self.body0, self.faces, PROBE_SPACING) if coarse else
                                            (np.zeros(0, dtype=np.int64), np.zeros((0, 3))))
         all_probes = np.arange(len(self.body0) + len(self.probe_tri))

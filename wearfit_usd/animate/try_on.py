@@ -30,13 +30,14 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from ..dress import regions as R
 from ..dress.apply import apply as apply_plan
 from ..dress.apply import dress
 from ..dress.hidden_body import SHOT_DEPTH, SHOT_MAX_GAP, hide_or_drop
 from ..dress.item_weights import PIECE_WEIGHT, SKINNED_SUFFIX, rigid_pieces, skinned_items
 from ..dress.plan import DressPlan
 from ..dress.plan import plan as plan_dress
-from ..dress.regions import REGION_NAMES, vertex_regions
+from ..dress.regions import vertex_regions
 from ..errors import NonFiniteError, USDInputError
 from ..fit.body_fit import fit_character
 from ..geometry.closest import SurfaceQuery
@@ -675,8 +676,8 @@ def _hem_spans(target: Character, ref_plan: DressPlan, dressed: list, body0: np.
     if ref_plan.regions is None or not ref_plan.regions.skirt_items or target.body.joint_indices is None:
         return {}
     labels = vertex_regions(target.body, target.skeleton)
-    legs = np.isin(labels, (REGION_NAMES.index("left_leg"), REGION_NAMES.index("right_leg")))
-    torso = labels == REGION_NAMES.index("torso")
+    legs = np.isin(labels, (R.LEFT_LEG, R.RIGHT_LEG))
+    torso = labels == R.TORSO
     if not legs.any() or not torso.any():
         return {}
     out = {}
