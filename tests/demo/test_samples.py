@@ -249,7 +249,7 @@ def _same_items(back, items):
 @pytest.fixture(scope="module")
 def clips():
     from wearfit_usd.io.bvh import read_bvh
-    return {n: read_bvh(REPO / "motions" / f"{n}.bvh") for n in ("walk", "arm_raise", "squat")}
+    return {n: read_bvh(REPO / "motions" / f"{n}.bvh") for n in ("walk", "arm_raise", "squat", "look")}
 
 
 def test_clips_are_committed_deterministic_and_packaged(tmp_path):
@@ -295,6 +295,22 @@ def test_arm_raise_goes_above_the_head(clips):
         assert hand[0] < 1.0 and hand[-1] < 1.0  # starts and ends down
         assert hand.max() > head.max() + 0.2  # above the head in the middle
         assert np.argmax(hand) in range(25, 35)
+
+
+def test_look_turns_and_nods_the_head_standing_still(clips):
+    """The chest twists (the shoulders' line turns over 20 degrees), the head
+    nods down and up (the neck-to-head segment tips over 8 degrees each way),
+    the feet stay put, and the clip ends in the pose it starts in."""
+    m = clips["look"]
+    g = m.global_positions()
+    shoulders = g[:, m.index("LeftShoulder")] - g[:, m.index("RightShoulder")]
+    up = g[:, m.index("Head")] - g[:, m.index("Neck")]
+    assert np.ptp(np.degrees(np.arctan2(shoulders[:, 2], shoulders[:, 0]))) > 20  # the chest twists
+    pitch = np.degrees(np.arctan2(up[:, 2], up[:, 1]))
+    assert pitch.max() - pitch[0] > 8 and pitch[0] - pitch.min() > 8  # nods down and up
+    for foot in ("LeftFoot", "RightFoot"):
+        assert np.ptp(g[:, m.index(foot)], axis=0).max() < 0.03
+    np.testing.assert_allclose(g[0], g[-1], atol=1e-3)
 
 
 def test_squat_bends_with_feet_on_the_floor(clips):

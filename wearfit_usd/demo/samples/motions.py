@@ -13,7 +13,10 @@ Clips (60 frames = 2 s each):
   the root advances at a constant 1.1 m/s along +Z, the lower foot on the floor;
 * ``arm_raise``: both arms from down at the sides to above the head and back;
 * ``squat``: knees bend to a deep squat with the arms forward and back up,
-  feet flat on the floor.
+  feet flat on the floor;
+* ``look``: standing, the head nods, turns and tilts, the chest twists and
+  bends sideways (with the others, the example poses the skinned items are
+  fitted to: :mod:`animate.skin_fit`).
 
 Regenerate (deterministic) with ``python3 -m wearfit_usd.samples.motions``
 (writes ``motions/`` at the repository root and ``wearfit_usd/motions/``).
@@ -61,7 +64,7 @@ PARENTS = np.array([p for _, p, _ in SKELETON], dtype=np.int64)
 OFFSETS = np.array([o for _, _, o in SKELETON], dtype=np.float64)
 HIP_HEIGHT = 0.95
 ANKLE_HEIGHT = HIP_HEIGHT - 0.03 - 0.84  # 0.08 m in the rest pose
-CLIPS = ["walk", "arm_raise", "squat"]
+CLIPS = ["walk", "arm_raise", "squat", "look"]
 
 
 def _rot(axis: str, deg) -> np.ndarray:
@@ -165,9 +168,24 @@ def squat(frames: int = FRAMES):
     return _feet_on_floor(rot, root), rot
 
 
+def look(frames: int = FRAMES):
+    """Standing, arms at the sides: the head nods (25 deg down and up), turns
+    (40 deg each way) and tilts (12 deg), the chest twists (15 deg) and bends
+    sideways (8 deg); starts and ends in the rest pose."""
+    t = np.arange(frames) / (frames - 1)
+    rot = _identity(frames)
+    rot = _arms_down(rot, 75.0)
+    nod, turn, tilt = 25.0 * np.sin(2 * np.pi * t), 40.0 * np.sin(4 * np.pi * t), 12.0 * np.sin(6 * np.pi * t)
+    rot[:, NAMES.index("Neck")] = _rot("x", 0.4 * nod) @ _rot("y", 0.4 * turn) @ _rot("z", 0.4 * tilt)
+    rot[:, NAMES.index("Head")] = _rot("x", 0.6 * nod) @ _rot("y", 0.6 * turn) @ _rot("z", 0.6 * tilt)
+    rot[:, NAMES.index("Spine1")] = _rot("y", 15.0 * np.sin(2 * np.pi * t)) @ _rot("z", 8.0 * np.sin(4 * np.pi * t))
+    root = np.tile([0.0, HIP_HEIGHT, 0.0], (frames, 1))
+    return _feet_on_floor(rot, root), rot
+
+
 def make_clip(name: str):
     """(root_positions (F, 3) metres, rotations (F, J, 3, 3) row-vector)."""
-    return {"walk": walk, "arm_raise": arm_raise, "squat": squat}[name]()
+    return {"walk": walk, "arm_raise": arm_raise, "squat": squat, "look": look}[name]()
 
 
 def write_clips(out_dirs) -> dict[str, list[Path]]:
