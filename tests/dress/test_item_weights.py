@@ -190,21 +190,18 @@ def _tri(mesh):
 @pytest.mark.slow
 def test_usdskel_skinned_items_follow_the_posed_body_like_the_per_frame_redress(tmp_path):
     """The skinned copies of `dress --items both`, posed by UsdSkel itself with
-    a walk's joint transforms, have new penetrations within 3 percentage
-    points of the per-frame redress (`animate`) on the same frames. (The issue
-    asks 1 point; the tight suit is over it: LBS of the skin's weights has
-    no push-out. Here the skinned suit has 3.32 %, unchanged; the redress's
-    fell from 1.14 % to 0.46 % when its guard took in the first pose's
-    dress, session 23, and the gap grew from 2.2 to 2.9 points.)"""
+    a walk's joint transforms, have new penetrations within 1 percentage
+    point of the per-frame redress (`animate`) on the same frames (issue
+    19). Their rest points are fitted to example poses (animate.skin_fit);
+    with `--no-skin-fit` the tight suit is over it (LBS of the skin's
+    weights has no push-out at the pinched armpits: 3.3 % against 0.5 %)."""
     from pxr import Usd, UsdGeom, UsdSkel
 
     from tests.usdskel_reference import author_animation, usdskel_skinned_points
     from wearfit_usd.geometry.closest import SurfaceQuery
     ref, tgt = USD_DIR / "ref_female.usda", USD_DIR / "body_female_thin.usdc"
-    shot, dressed = tmp_path / "shot.usdc", tmp_path / "dressed.usda"
+    shot = tmp_path / "shot.usdc"
     r = _cli("animate", ref, tgt, BVH_DIR / "cmu_07_01_walk.bvh", "-o", shot, "--end", "60", "-q")
-    assert r.returncode == 0, r.stderr
-    r = _cli("dress", ref, tgt, "-o", dressed, "-q")
     assert r.returncode == 0, r.stderr
     s_shot = Usd.Stage.Open(str(shot))
     frames = list(range(0, int(s_shot.GetEndTimeCode()) + 1, 2))
@@ -214,24 +211,37 @@ def test_usdskel_skinned_items_follow_the_posed_body_like_the_per_frame_redress(
     cache.Populate(UsdSkel.Root(root), Usd.PrimDefaultPredicate)
     sq = cache.GetSkelQuery(UsdSkel.Skeleton(next(p for p in s_shot.Traverse() if p.IsA(UsdSkel.Skeleton))))
     local = np.array([np.array(sq.ComputeJointLocalTransforms(f)) for f in frames])
-    st = Usd.Stage.Open(str(dressed))
-    skel = next(p for p in st.Traverse() if p.IsA(UsdSkel.Skeleton))
-    author_animation(st, str(skel.GetPath()), local, list(sq.GetJointOrder()))
-    body_path = "/Root/Character/Body"
-    faces = _tri(UsdGeom.Mesh(st.GetPrimAtPath(body_path)))
-    q0 = SurfaceQuery(faces, np.array(UsdGeom.Mesh(st.GetPrimAtPath(body_path)).GetPointsAttr().Get(), float))
-    skinned = [p for p in st.Traverse() if p.IsA(UsdGeom.Mesh) and p.GetName().endswith("_skinned")]
-    assert len(skinned) == 4
-    bodies = [SurfaceQuery(faces, usdskel_skinned_points(st, body_path, k)) for k in range(len(frames))]
-    for prim in skinned:
-        name = prim.GetName()[:-len("_skinned")]
-        outside = q0.closest(np.array(UsdGeom.Mesh(prim).GetPointsAttr().Get(), float))["distance"] > 0
-        item = UsdGeom.Mesh(s_shot.GetPrimAtPath(f"/Root/Items/{name}"))
-        sk = max(100 * np.mean((q.closest(usdskel_skinned_points(st, str(prim.GetPath()), k))["distance"] < 0)
-                               & outside) for k, q in enumerate(bodies))
-        rd = max(100 * np.mean((q.closest(np.array(item.GetPointsAttr().Get(f), float))["distance"] < 0)
-                               & outside) for f, q in zip(frames, bodies))
-        assert sk <= rd + 3.0, (name, sk, rd)
+    gaps = {}
+    for flags in ((), ("--no-skin-fit",)):
+        dressed = tmp_path / f"dressed{len(flags)}.usda"  # a new layer each (USD keeps opened ones)
+        r = _cli("dress", ref, tgt, "-o", dressed, "-q", *flags)
+        assert r.returncode == 0, r.stderr
+        st = Usd.Stage.Open(str(dressed))
+        skel = next(p for p in st.Traverse() if p.IsA(UsdSkel.Skeleton))
+        author_animation(st, str(skel.GetPath()), local, list(sq.GetJointOrder()))
+        body_path = "/Root/Character/Body"
+        faces = _tri(UsdGeom.Mesh(st.GetPrimAtPath(body_path)))
+        q0 = SurfaceQuery(faces, np.array(UsdGeom.Mesh(st.GetPrimAtPath(body_path)).GetPointsAttr().Get(), float))
+        skinned = [p for p in st.Traverse() if p.IsA(UsdGeom.Mesh) and p.GetName().endswith("_skinned")]
+        assert len(skinned) == 4
+        bodies = [SurfaceQuery(faces, usdskel_skinned_points(st, body_path, k)) for k in range(len(frames))]
+        for prim in skinned:
+            name = prim.GetName()[:-len("_skinned")]
+            # "new": outside the body in the static dress (the point copy
+            # written beside it; the fitted copy's rest points stand further out)
+            static = np.array(UsdGeom.Mesh(st.GetPrimAtPath(f"/Root/Items/{name}")).GetPointsAttr().Get(), float)
+            outside = q0.closest(static)["distance"] > 0
+            item = UsdGeom.Mesh(s_shot.GetPrimAtPath(f"/Root/Items/{name}"))
+            sk = max(100 * np.mean((q.closest(usdskel_skinned_points(st, str(prim.GetPath()), k))["distance"] < 0)
+                                   & outside) for k, q in enumerate(bodies))
+            rd = max(100 * np.mean((q.closest(np.array(item.GetPointsAttr().Get(f), float))["distance"] < 0)
+                                   & outside) for f, q in zip(frames, bodies))
+            gaps[(flags, name)] = sk - rd
+            if flags:
+                continue
+            assert sk <= rd + 1.0, (name, sk, rd)
+    # the fit does the work: without it the tight suit is over (3.3 % against 0.5 %)
+    assert gaps[(("--no-skin-fit",), "female_casualsuit01")] > 1.5
 
 
 @pytest.mark.slow

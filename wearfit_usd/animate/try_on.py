@@ -58,6 +58,7 @@ from .loose import cloth_weights
 from .measures import MEASURES, MotionMeasures, worst_frames
 from .penetration_guard import PenetrationGuard
 from .short_edges import ShortEdgeWeld
+from .skin_fit import TRAINING_CLIPS, fit_skinned_items, training_frames
 from .skin_transfer import transfer_weights
 from .strain_limit import WELD_ROUND_PASSES, WELD_ROUNDS, StrainLimit
 
@@ -90,6 +91,9 @@ class AnimateOptions:
     rigid_items: str = "skinned"       # bind mode: "skinned" (shoes, hats, glasses by LBS with their binding's
     #                                    weights, _RigidItems) or "bound" (binding, rigid fit, penetration guard)
     hidden_body: str = "none"          # "subset": name the covered body faces; "delete": drop them (hidden_body)
+    skin_fit: bool = True              # bind mode, items skinned|both: the skinned copies' rest points fitted to
+    #                                    example poses (skin_fit)
+    frame_sink: object = None          # skin_fit.FrameRecorder: gets every frame's matrices, body and items
 
 
 @dataclass
@@ -108,6 +112,7 @@ class AnimateReport:
     cloth_vertices: int = 0  # item vertices simulated as cloth
     skinned_items: list = field(default_factory=list)  # names of the items written bound to the skeleton
     skinned_rigid_items: list = field(default_factory=list)  # rigid items and skin decals skinned (bind mode)
+    skin_fit: dict = field(default_factory=dict)  # the skinned copies' fit (skin_fit): frames, moved mm
     dress_pose: str = ""  # the pose frame 0 was dressed in: "first" or "bind" (AnimateOptions.dress_pose resolved)
     strain_limited_edges: int = 0  # item edges the strain limit shortened, summed over the frames (-1: off)
     # skirts whose hem cannot go round the legs at its height in some frames
@@ -123,7 +128,7 @@ class AnimateReport:
                 "cloth_vertices": self.cloth_vertices, "skinned_items": self.skinned_items,
                 "skinned_rigid_items": self.skinned_rigid_items, "dress_pose": self.dress_pose,
                 "strain_limited_edges": self.strain_limited_edges, "narrow_hems": self.narrow_hems,
-                "mapping": self.mapping}
+                "skin_fit": self.skin_fit, "mapping": self.mapping}
 
 
 #: a target body whose edges (99th percentile) are this many times the
@@ -478,7 +483,21 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
 
     skinned = None
     if items_mode != "points":
-        skinned = _skinned_copies(skin_src, SKINNED_SUFFIX if items_mode == "both" else "")
+        copies = skin_src
+        if opt.mode == "bind" and opt.skin_fit:
+            # rest points that the skeleton's skinning carries onto the redress of example poses
+            t0 = time.perf_counter()
+            frames = training_frames(reference, target, ref_plan, opt)
+            copies, moved = fit_skinned_items(skin_src, body.faces, target.body.points, frames)
+            rep.skin_fit = {"frames": int(len(frames[0])), "clips": list(TRAINING_CLIPS),
+                            "vertices": int((~frames[3]).sum()),
+                            "moved_p95_mm": float(1000 * np.percentile(moved[~frames[3]], 95)) if (~frames[3]).any()
+                            else 0.0, "moved_max_mm": float(1000 * moved.max())}
+            rep.timings["skin_fit"] = time.perf_counter() - t0
+            info(f"skinned copies fitted to {rep.skin_fit['frames']} example poses ({', '.join(TRAINING_CLIPS)}): "
+                 f"rest points moved p95 {rep.skin_fit['moved_p95_mm']:.1f} mm, max "
+                 f"{rep.skin_fit['moved_max_mm']:.1f} mm ({rep.timings['skin_fit']:.1f} s; --no-skin-fit skips)")
+        skinned = _skinned_copies(copies, SKINNED_SUFFIX if items_mode == "both" else "")
         rep.skinned_items = [m.name for m in skinned]
     written_items = items if items_mode != "skinned" else []
 
@@ -503,6 +522,17 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
         world.on_block = write_block
         world.reset()
         world(0)  # frame 0's block (and animation samples) even where frame 0 skips the skinning
+        if opt.frame_sink is not None:
+            # the vertices the binding does not move: the cloth's, the items skinned whole
+            free = np.zeros(len(all_base), dtype=bool)
+            if cloth is not None:
+                free |= cloth.weights > 0
+            if rigid is not None:
+                # their rigid pieces; a hinge's vertices (a shoe's toe band, short
+                # hair's nape), pushed out by the guard here, are fitted
+                free[rigid.rows] = True
+                free[rigid.hinge_rows] = False
+            opt.frame_sink.start(free)
         for f in progress(range(n_frames), total=n_frames, desc="animate", unit="frame"):
             ta = time.perf_counter()
             mats = skin_mats(f)
@@ -557,6 +587,8 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
                         strain(body_f, pts, pushed, iterations=WELD_ROUND_PASSES, planes=floors)
                         weld(pts)
             check_finite_points(pts, f, rt, motion.path)
+            if opt.frame_sink is not None:
+                opt.frame_sink.add(f, mats, body_f, pts)
             td = time.perf_counter()
             t_pen += td - tc
             if hems:   # the legs' outline at each skirt's hem (a measure: its time counted as one)

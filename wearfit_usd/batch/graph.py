@@ -218,7 +218,8 @@ def task_dress(reference, target, fit, plan_key: str, meta: dict) -> dict:
         p, built = _plan_of(reference, plan_key, meta["k"])
         res = dress(reference, target, k=meta["k"], prepared=p,
                     body_points=np.asarray(fit.points, dtype=np.float64))
-        write_dressed(obj, reference, target, res)  # as `wearfit dress` with its defaults
+        # as `wearfit dress` with its defaults (the skinned copies fitted to example poses)
+        write_dressed(obj, reference, target, res, ref_plan=p)
         rows = dress_report(reference, target, res)
         figures = {"items": rows,
                    "new_penetration_pct": max((r["new_pen_pct"] for r in rows), default=0.0),

@@ -160,7 +160,7 @@ def run(args) -> int:
                           carry_plan=_carry_plan(reference, target, args),
                           hidden_body="delete" if args.delete_hidden_body else "subset",
                           rigid_items=args.rigid_items, strain_limit=args.strain_limit,
-                          contact_hold=args.contact_hold)
+                          contact_hold=args.contact_hold, skin_fit=not args.no_skin_fit)
     rep = animate(reference, target, motion, args.output, opts)
     t = rep.timings
     info(f"wrote {args.output}: {rep.frames} frames at {rep.fps:g} fps, {len(reference.items)} items; "

@@ -78,7 +78,8 @@ def run(args) -> int:
                 push_inherited=args.fix_reference_penetrations, body_points=body_points)
     points, skinned, hidden = write_dressed(out, ref, target, res, args.items,
                                             reference_inputs=args.reference_inputs,
-                                            delete_hidden_body=args.delete_hidden_body)
+                                            delete_hidden_body=args.delete_hidden_body,
+                                            skin_fit=not args.no_skin_fit, pose_align=not args.no_pose)
     t = res.timings
     if args.report:
         from ..dress.metrics import dress_report

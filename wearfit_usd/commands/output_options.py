@@ -36,12 +36,14 @@ def dress_output(reference, target, items, reference_inputs: bool = False, delet
 
 
 def write_dressed(out, reference, target, result, items: str = "both", reference_inputs: bool = False,
-                  delete_hidden_body: bool = False):
+                  delete_hidden_body: bool = False, skin_fit: bool = True, ref_plan=None, pose_align: bool = True):
     """Write a dressing ``result`` on ``target`` as `wearfit dress` does (and
     `wearfit batch` with it): the body with its hidden subsets, the items as
     ``items`` (points, skinned or both), the inputs' materials and primvars
-    carried onto each written mesh. Returns (point items, skinned items,
-    one-line summary of the hidden body)."""
+    carried onto each written mesh. With ``skin_fit`` the skinned items'
+    rest points are fitted to example poses (:mod:`animate.skin_fit`; the
+    reference's dressing plan ``ref_plan`` reused when given). Returns
+    (point items, skinned items, one-line summary of the hidden body)."""
     from dataclasses import replace
 
     from ..io.usd import write_character
@@ -49,7 +51,18 @@ def write_dressed(out, reference, target, result, items: str = "both", reference
     from .targets import output_items
     body, plan, hidden = dress_output(reference, target, result.items, reference_inputs=reference_inputs,
                                       delete_hidden_body=delete_hidden_body)
-    points, skinned = output_items(result, target, items)
+    frames = None
+    if skin_fit and items != "points":
+        import time
+
+        from ..animate.skin_fit import TRAINING_CLIPS, training_frames
+        from ..animate.try_on import AnimateOptions
+        from ..progress import info
+        t0 = time.perf_counter()
+        frames = training_frames(reference, target, ref_plan, AnimateOptions(pose_align=pose_align))
+        info(f"skinned items: {len(frames[0])} example poses ({', '.join(TRAINING_CLIPS)}) dressed in "
+             f"{time.perf_counter() - t0:.1f} s to fit their rest points (--no-skin-fit skips)")
+    points, skinned = output_items(result, target, items, skin_frames=frames)
     if skinned:  # the skinned copies carry their items' materials and primvars too
         extra = CarryPlan.for_dress(reference, target, skinned, reference_inputs=reference_inputs).items
         plan = replace(plan, items={**extra, **plan.items})

@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import argparse
 
+import numpy as np
+
 ITEM_MODES = ("points", "skinned", "both")
 
 
@@ -24,6 +26,11 @@ def add_target_options(p, items_default: str | None) -> None:
                         "(meshes bound to the target skeleton inside the SkelRoot, weights from the "
                         "K-triangle binding, at most 8 influences), or 'both' (skinned copies named "
                         f"<item>_skinned) (default {items_default})")
+    p.add_argument("--no-skin-fit", action="store_true",
+                   help="skinned items keep the dressing's rest points as they are; by default their rest "
+                        "points are fitted so that the skeleton's linear blend skinning follows the "
+                        "per-frame redress over example poses (the package's walk, arm raise and squat: a "
+                        "few seconds; a tight suit then sinks into the pinched armpits far less)")
 
 
 def load_target(reference, path, rig: bool | None, pose_align: bool = True):
@@ -58,9 +65,11 @@ def load_target(reference, path, rig: bool | None, pose_align: bool = True):
     return rigged.character, rigged.fit.points
 
 
-def output_items(result, target, mode: str):
+def output_items(result, target, mode: str, skin_frames=None):
     """The meshes to write for ``mode``: (point items, skinned items) from a
-    :class:`dress.apply.DressResult` on ``target``'s bind pose."""
+    :class:`dress.apply.DressResult` on ``target``'s bind pose; the skinned
+    items' rest points fitted to ``skin_frames``
+    (:func:`animate.skin_fit.training_frames`) when given."""
     from ..dress.item_weights import SKINNED_SUFFIX, skinned_items
     points = []
     if mode in ("points", "both"):
@@ -71,4 +80,14 @@ def output_items(result, target, mode: str):
     skinned = []
     if mode in ("skinned", "both"):
         skinned = skinned_items(result, target, suffix=SKINNED_SUFFIX if mode == "both" else "")
+        if skin_frames is not None:
+            from ..animate.skin_fit import fit_skinned_items
+            from ..dress.item_weights import PIECE_WEIGHT
+            from ..dress.plan import group_mask
+            # this dressing's rigid pieces (of released parts too) keep their
+            # points; their hinges' vertices (on two joints) are fitted
+            pl = result.plan
+            keep = group_mask(pl.rigid_groups + pl.released_groups, len(pl.ref_points))
+            keep &= np.concatenate([np.asarray(m.joint_weights).max(axis=1) for m in skinned]) >= PIECE_WEIGHT
+            skinned, _ = fit_skinned_items(skinned, target.body.faces, target.body.points, skin_frames, keep=keep)
     return points, skinned
