@@ -155,3 +155,22 @@ def test_fit_skinned_items_keeps_free_and_kept_vertices_and_names():
     np.testing.assert_array_equal(a.points, pts[:2])  # the inputs are left alone
     with pytest.raises(ValueError, match="example points"):
         fit_skinned_items([a], faces, plane, frames)
+
+
+def test_example_frames_that_cannot_be_made_leave_the_items_as_dressed(monkeypatch):
+    """When the example clips cannot be put on the target (here: the
+    retargeting refuses), the fit is skipped with a warning naming the
+    target and the reason, instead of failing the dressing."""
+    import wearfit_usd.animate.skin_fit as sf
+    from wearfit_usd.errors import InputError
+
+    def refuse(*args, **kwargs):
+        raise InputError("clip.bvh", "key joints not paired: LeftUpLeg")
+
+    monkeypatch.setattr(sf, "training_frames", refuse)
+
+    class Target:
+        source = "odd_rig.usdc"
+
+    with pytest.warns(UserWarning, match=r"odd_rig\.usdc.*not fitted to example poses.*LeftUpLeg"):
+        assert sf.example_frames(None, Target(), None, None) is None

@@ -262,6 +262,19 @@ def training_frames(reference, target, ref_plan, options, every: int = TRAINING_
     return mats, bodies, items, rec.free
 
 
+def example_frames(reference, target, ref_plan, options) -> tuple | None:
+    """:func:`training_frames`, or None with a warning when the example clips
+    cannot be put on ``target`` (e.g. its skeleton's key joints do not pair
+    with the clips'): the skinned items are then written as dressed."""
+    from ..errors import WearfitError
+    from ..progress import warn
+    try:
+        return training_frames(reference, target, ref_plan, options)
+    except WearfitError as e:
+        warn(f"{target.source}: the skinned items are written as dressed, not fitted to example poses: {e}")
+        return None
+
+
 def fit_skinned_items(skinned: list, body_faces: np.ndarray, rest_body: np.ndarray, frames: tuple,
                       keep: np.ndarray | None = None) -> tuple:
     """The skinned copies (meshes in the bind pose with ``joint_indices`` /

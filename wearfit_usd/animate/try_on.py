@@ -58,7 +58,7 @@ from .loose import cloth_weights
 from .measures import MEASURES, MotionMeasures, worst_frames
 from .penetration_guard import PenetrationGuard
 from .short_edges import ShortEdgeWeld
-from .skin_fit import TRAINING_CLIPS, fit_skinned_items, training_frames
+from .skin_fit import TRAINING_CLIPS, example_frames, fit_skinned_items
 from .skin_transfer import transfer_weights
 from .strain_limit import WELD_ROUND_PASSES, WELD_ROUNDS, StrainLimit
 
@@ -484,10 +484,10 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
     skinned = None
     if items_mode != "points":
         copies = skin_src
-        if opt.mode == "bind" and opt.skin_fit:
+        t0 = time.perf_counter()
+        frames = example_frames(reference, target, ref_plan, opt) if opt.mode == "bind" and opt.skin_fit else None
+        if frames is not None:
             # rest points that the skeleton's skinning carries onto the redress of example poses
-            t0 = time.perf_counter()
-            frames = training_frames(reference, target, ref_plan, opt)
             copies, moved = fit_skinned_items(skin_src, body.faces, target.body.points, frames)
             rep.skin_fit = {"frames": int(len(frames[0])), "clips": list(TRAINING_CLIPS),
                             "vertices": int((~frames[3]).sum()),

@@ -55,13 +55,14 @@ def write_dressed(out, reference, target, result, items: str = "both", reference
     if skin_fit and items != "points":
         import time
 
-        from ..animate.skin_fit import TRAINING_CLIPS, training_frames
+        from ..animate.skin_fit import TRAINING_CLIPS, example_frames
         from ..animate.try_on import AnimateOptions
         from ..progress import info
         t0 = time.perf_counter()
-        frames = training_frames(reference, target, ref_plan, AnimateOptions(pose_align=pose_align))
-        info(f"skinned items: {len(frames[0])} example poses ({', '.join(TRAINING_CLIPS)}) dressed in "
-             f"{time.perf_counter() - t0:.1f} s to fit their rest points (--no-skin-fit skips)")
+        frames = example_frames(reference, target, ref_plan, AnimateOptions(pose_align=pose_align))
+        if frames is not None:
+            info(f"skinned items: {len(frames[0])} example poses ({', '.join(TRAINING_CLIPS)}) dressed in "
+                 f"{time.perf_counter() - t0:.1f} s to fit their rest points (--no-skin-fit skips)")
     points, skinned = output_items(result, target, items, skin_frames=frames)
     if skinned:  # the skinned copies carry their items' materials and primvars too
         extra = CarryPlan.for_dress(reference, target, skinned, reference_inputs=reference_inputs).items

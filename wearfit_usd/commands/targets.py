@@ -29,8 +29,8 @@ def add_target_options(p, items_default: str | None) -> None:
     p.add_argument("--no-skin-fit", action="store_true",
                    help="skinned items keep the dressing's rest points as they are; by default their rest "
                         "points are fitted so that the skeleton's linear blend skinning follows the "
-                        "per-frame redress over example poses (the package's walk, arm raise and squat: a "
-                        "few seconds; a tight suit then sinks into the pinched armpits far less)")
+                        "per-frame redress over example poses (the package's arm raise, squat, look and "
+                        "walk: a few seconds; a tight suit then sinks into the pinched armpits far less)")
 
 
 def load_target(reference, path, rig: bool | None, pose_align: bool = True):
