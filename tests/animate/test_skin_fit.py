@@ -174,3 +174,25 @@ def test_example_frames_that_cannot_be_made_leave_the_items_as_dressed(monkeypat
 
     with pytest.warns(UserWarning, match=r"odd_rig\.usdc.*not fitted to example poses.*LeftUpLeg"):
         assert sf.example_frames(None, Target(), None, None) is None
+
+
+def test_an_inner_layer_does_not_move_out_through_the_layer_over_it():
+    """Two layers 4 mm apart over a plane (normal +Z): the inner vertex
+    fitted 6 mm out while the outer one stayed is brought back to half the
+    gap (2 mm); one fitted 1 mm out is left; sideways moves are kept; a
+    vertex under nothing keeps any move."""
+    from wearfit_usd.animate.skin_fit import keep_layer_order
+    rest = np.array([[0.0, 0.0, 0.002], [0.1, 0.0, 0.002], [0.0, 0.0, 0.006], [0.1, 0.0, 0.006],
+                     [0.5, 0.0, 0.002]])
+    fitted = rest.copy()
+    fitted[0] += [0.001, 0.0, 0.006]   # out through the outer layer, and 1 mm sideways
+    fitted[1, 2] += 0.001              # out, under the outer layer still
+    fitted[4, 2] += 0.006              # under nothing
+    normal = np.tile([0.0, 0.0, 1.0], (5, 1))
+    got = keep_layer_order(rest, fitted, normal, rest[:, 2], np.array([0, 1]), np.array([2, 3]))
+    np.testing.assert_allclose(got[0], [0.001, 0.0, 0.004], atol=1e-12)
+    np.testing.assert_allclose(got[1:], fitted[1:], atol=1e-12)
+    # the outer vertex moved out 3 mm: the inner one may follow to 3 + 2 mm
+    fitted[2, 2] += 0.003
+    got = keep_layer_order(rest, fitted, normal, rest[:, 2], np.array([0, 1]), np.array([2, 3]))
+    np.testing.assert_allclose(got[0, 2], 0.002 + 0.005, atol=1e-12)

@@ -152,6 +152,38 @@ class MotionLimitError(WearfitError):
         super().__init__(f"{self.path or '<shot>'}: {message}")
 
 
+def layer_pairs(points: np.ndarray, clearance: np.ndarray, offsets: np.ndarray, reach: float = 0.02,
+                gap: float = 0.002) -> tuple[np.ndarray, np.ndarray]:
+    """Item vertices under another item, and the vertex over each.
+
+    Parameters
+    ----------
+    points : (M, 3) the items stacked; offsets : (n_items + 1,) their
+        starts; clearance : (M,) each vertex's signed distance to the body.
+    reach, gap : metres: a vertex is under the nearest vertex of another
+        item within ``reach`` that is at least ``gap`` farther from the skin.
+
+    Returns
+    -------
+    (U,) int64 the vertices under another item, (U,) int64 the vertex over each.
+    """
+    m = len(points)
+    n_items = len(offsets) - 1
+    item_of = np.repeat(np.arange(n_items), np.diff(offsets))
+    if n_items < 2 or m == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    k = int(min(12, m))
+    d, idx = cKDTree(points).query(points, k=k, distance_upper_bound=reach)
+    d, idx = np.asarray(d).reshape(m, k), np.asarray(idx).reshape(m, k)
+    found = idx < m
+    safe = np.where(found, idx, 0)
+    ok = found & (item_of[safe] != item_of[:, None]) & (clearance[safe] > clearance[:, None] + gap)
+    has = ok.any(axis=1)
+    first = np.argmax(ok, axis=1)  # nearest first: the first qualifying neighbour
+    under = np.flatnonzero(has)
+    return under.astype(np.int64), safe[under, first[under]].astype(np.int64)
+
+
 class MotionMeasures:
     """``MotionMeasures(...)(body_f (N, 3), items_f (M, 3)) -> [dict per item]``:
     the motion measures of one frame against the static dress (see the
@@ -216,7 +248,8 @@ class MotionMeasures:
         self.fold_margin = float(fold_margin)
         self.contact_mask = (self.clearance0 < self.contact) & ~self.hanging
         self.outside0 = self.clearance0 > 0.0
-        self.under, self.over = self._layers(float(layer_reach), float(layer_gap))
+        self.under, self.over = layer_pairs(self.items0, self.clearance0, self.offsets, float(layer_reach),
+                                            float(layer_gap))
         # coverage: the body vertices (and on a low-poly body the probes over
         # its triangles) each item covers statically, and the hit triangle
         n0 = self.normals(self.body0)
@@ -266,25 +299,6 @@ class MotionMeasures:
             fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
             d[~vert] = fn / np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-300)
         return o, d
-
-    def _layers(self, reach: float, gap: float) -> tuple[np.ndarray, np.ndarray]:
-        """Item vertices under another item in the static dress (U,) and the
-        vertex of the other item over each (U,): the nearest vertex of
-        another item within ``reach`` that is ``gap`` farther from the skin."""
-        m = len(self.items0)
-        item_of = np.repeat(np.arange(len(self.names)), np.diff(self.offsets))
-        if len(self.names) < 2 or m == 0:
-            return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
-        k = int(min(12, m))
-        d, idx = cKDTree(self.items0).query(self.items0, k=k, distance_upper_bound=reach)
-        d, idx = np.asarray(d).reshape(m, k), np.asarray(idx).reshape(m, k)
-        found = idx < m
-        safe = np.where(found, idx, 0)
-        ok = found & (item_of[safe] != item_of[:, None]) & (self.clearance0[safe] > self.clearance0[:, None] + gap)
-        has = ok.any(axis=1)
-        first = np.argmax(ok, axis=1)  # nearest first: the first qualifying neighbour
-        under = np.flatnonzero(has)
-        return under.astype(np.int64), safe[under, first[under]].astype(np.int64)
 
     def _folded(self, body_points: np.ndarray, origins: np.ndarray, dirs: np.ndarray,
                 depth: np.ndarray) -> np.ndarray:

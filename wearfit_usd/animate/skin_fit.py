@@ -53,6 +53,7 @@ from pathlib import Path
 import numpy as np
 
 from ..geometry.closest import SurfaceQuery
+from .measures import layer_pairs
 
 #: the package's procedural clips the copies are fitted on
 TRAINING_CLIPS = ("arm_raise", "squat", "look", "walk")
@@ -70,6 +71,8 @@ CLEARANCE_MARGIN = 0.002
 ROUNDS = 4
 #: no rest point moves farther than this (m): what the bind pose may show
 MAX_MOVE = 0.008
+#: an inner layer's vertex moves out at most as far as the one over it, plus this share of their gap
+LAYER_SHARE = 0.5
 
 
 class FrameRecorder:
@@ -262,6 +265,29 @@ def training_frames(reference, target, ref_plan, options, every: int = TRAINING_
     return mats, bodies, items, rec.free
 
 
+def keep_layer_order(rest: np.ndarray, fitted: np.ndarray, normal: np.ndarray, clearance0: np.ndarray,
+                     under: np.ndarray, over: np.ndarray, share: float = LAYER_SHARE) -> np.ndarray:
+    """``fitted`` (M, 3) with the layers of the static dress ``rest`` (M, 3)
+    kept: each vertex ``under[i]`` of an inner item moves out along its body
+    ``normal`` (M, 3, unit) at most as far as the vertex ``over[i]`` of the
+    item over it moved out, plus ``share`` of their static gap
+    (``clearance0[over] - clearance0[under]``). Fitted item by item to the
+    body alone, a top under a skirt came through it at the waist on 0.95 %
+    of its covered vertices in the bind pose."""
+    out = np.array(fitted, dtype=np.float64)
+    if len(under) == 0:
+        return out
+    n = normal[under]
+    mine = np.einsum("ij,ij->i", out[under] - rest[under], n)
+    theirs = np.einsum("ij,ij->i", out[over] - rest[over], n)
+    excess = mine - (theirs + share * (clearance0[over] - clearance0[under]))
+    # one vertex may lie under several: the largest excess wins
+    cut = np.zeros(len(out))
+    np.maximum.at(cut, under, excess)
+    out -= np.maximum(cut, 0.0)[:, None] * normal
+    return out
+
+
 def example_frames(reference, target, ref_plan, options) -> tuple | None:
     """:func:`training_frames`, or None with a warning when the example clips
     cannot be put on ``target`` (e.g. its skeleton's key joints do not pair
@@ -295,9 +321,14 @@ def fit_skinned_items(skinned: list, body_faces: np.ndarray, rest_body: np.ndarr
     rows = np.flatnonzero(~np.asarray(free, dtype=bool))
     new = rest.copy()
     if len(rows):
-        clear0 = SurfaceQuery(body_faces, rest_body).signed_distance(rest[rows])
+        foot = SurfaceQuery(body_faces, rest_body).closest(rest)
+        clear0 = foot["distance"]
         new[rows] = fit_rest_points(rest[rows], ji[rows], jw[rows], mats, items[:, rows], body_faces, bodies,
-                                    clear0)
+                                    clear0[rows])
+        offsets = np.concatenate([[0], np.cumsum([len(s.points) for s in skinned])])
+        under, over = layer_pairs(rest, clear0, offsets)
+        normal = foot["normal"] / np.maximum(np.linalg.norm(foot["normal"], axis=1, keepdims=True), 1e-12)
+        new = keep_layer_order(rest, new, normal, clear0, under, over)
     out, a = [], 0
     for s in skinned:
         n = len(s.points)
