@@ -196,3 +196,38 @@ def test_an_inner_layer_does_not_move_out_through_the_layer_over_it():
     fitted[2, 2] += 0.003
     got = keep_layer_order(rest, fitted, normal, rest[:, 2], np.array([0, 1]), np.array([2, 3]))
     np.testing.assert_allclose(got[0, 2], 0.002 + 0.005, atol=1e-12)
+
+
+@pytest.mark.slow
+def test_example_frames_made_once_serve_several_shots(tmp_path, monkeypatch):
+    """The example poses depend on the reference and the target only: made
+    once (``training_frames``) and passed as ``AnimateOptions.skin_examples``
+    they are used as they are (none are made again) and give the shot the
+    same skinned copies as a shot that makes its own."""
+    import wearfit_usd.animate.try_on as try_on
+    from tests.conftest import BVH_DIR, USD_DIR
+    from wearfit_usd.animate.skin_fit import training_frames
+    from wearfit_usd.animate.try_on import AnimateOptions, animate
+    from wearfit_usd.io.bvh import read_bvh
+    from wearfit_usd.io.usd import read_character
+    ref, tgt = read_character(USD_DIR / "ref_female.usda"), read_character(USD_DIR / "body_female_thin.usdc")
+    motion = read_bvh(BVH_DIR / "cmu_07_01_walk.bvh")
+    opt = AnimateOptions(start=1, end=9, items="skinned")
+    own = animate(ref, tgt, motion, tmp_path / "own.usdc", opt)
+    examples = training_frames(ref, tgt, None, AnimateOptions())
+    assert len(examples[0]) == own.skin_fit["frames"] == 40
+
+    def made_again(*args, **kwargs):
+        raise AssertionError("example frames made again")
+
+    monkeypatch.setattr(try_on, "example_frames", made_again)
+    from dataclasses import replace
+    shared = animate(ref, tgt, motion, tmp_path / "shared.usdc", replace(opt, skin_examples=examples))
+    assert shared.skin_fit == own.skin_fit
+    from pxr import Usd, UsdGeom
+    a, b = Usd.Stage.Open(str(tmp_path / "own.usdc")), Usd.Stage.Open(str(tmp_path / "shared.usdc"))
+    meshes = [p for p in a.Traverse() if p.IsA(UsdGeom.Mesh) and "casualsuit" in p.GetName()]
+    assert meshes
+    for p in meshes:
+        np.testing.assert_array_equal(np.array(UsdGeom.Mesh(p).GetPointsAttr().Get()),
+                                      np.array(UsdGeom.Mesh(b.GetPrimAtPath(p.GetPath())).GetPointsAttr().Get()))

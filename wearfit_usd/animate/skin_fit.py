@@ -250,7 +250,7 @@ def training_frames(reference, target, ref_plan, options, every: int = TRAINING_
         ref_plan = plan_dress(reference, k=options.k)
     rec = FrameRecorder(every)
     opt = replace(options, start=0, end=None, fps=TRAINING_FPS, items="points", write_skinned_items=False,
-                  measure_every=0, frame_sink=rec, skin_fit=False, mapping=None, max_frames=None,
+                  measure_every=0, frame_sink=rec, skin_fit=False, skin_examples=None, mapping=None, max_frames=None,
                   clip_frames=None, velocities=False, carry_plan=None, hidden_body="none")
     level = verbosity()
     with tempfile.TemporaryDirectory(prefix="wearfit_skinfit_") as tmp, warnings.catch_warnings():

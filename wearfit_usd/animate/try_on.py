@@ -94,6 +94,8 @@ class AnimateOptions:
     skin_fit: bool = True              # bind mode, items skinned|both: the skinned copies' rest points fitted to
     #                                    example poses (skin_fit)
     frame_sink: object = None          # skin_fit.FrameRecorder: gets every frame's matrices, body and items
+    skin_examples: tuple | None = None  # skin_fit.training_frames of this reference and target, made once for
+    #                                     several clips (None: made here when skin_fit needs them)
 
 
 @dataclass
@@ -485,7 +487,10 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
     if items_mode != "points":
         copies = skin_src
         t0 = time.perf_counter()
-        frames = example_frames(reference, target, ref_plan, opt) if opt.mode == "bind" and opt.skin_fit else None
+        frames = None
+        if opt.mode == "bind" and opt.skin_fit:
+            frames = opt.skin_examples if opt.skin_examples is not None else example_frames(reference, target,
+                                                                                            ref_plan, opt)
         if frames is not None:
             # rest points that the skeleton's skinning carries onto the redress of example poses
             copies, moved = fit_skinned_items(skin_src, body.faces, target.body.points, frames)
