@@ -328,7 +328,8 @@ def fit_skinned_items(skinned: list, body_faces: np.ndarray, rest_body: np.ndarr
         offsets = np.concatenate([[0], np.cumsum([len(s.points) for s in skinned])])
         under, over = layer_pairs(rest, clear0, offsets)
         normal = foot["normal"] / np.maximum(np.linalg.norm(foot["normal"], axis=1, keepdims=True), 1e-12)
-        new = keep_layer_order(rest, new, normal, clear0, under, over)
+        layered = keep_layer_order(rest, new, normal, clear0, under, over)
+        new[rows] = layered[rows]  # the free and kept vertices stay where they are, whatever lies over them
     out, a = [], 0
     for s in skinned:
         n = len(s.points)
