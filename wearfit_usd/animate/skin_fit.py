@@ -188,8 +188,7 @@ def fit_rest_points(rest: np.ndarray, joint_indices: np.ndarray, joint_weights: 
             if not len(act):
                 continue
             added += len(act)
-            n = c["normal"][act]  # the closest feature's pseudo-normal, made unit
-            n = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+            n = _unit_rows(c["normal"][act])  # the closest feature's pseudo-normal
             # n . (p R + t) >= n . c + h, as a least-squares row g . p = rhs
             g = np.einsum("ac,akc->ak", n, R[k][act])
             rhs = (np.einsum("ac,ac->a", n, c["point"][act]) + want[act]
@@ -200,6 +199,11 @@ def fit_rest_points(rest: np.ndarray, joint_indices: np.ndarray, joint_weights: 
             break
         p = np.linalg.solve(a0 + a_pen, (b0 + b_pen)[..., None])[..., 0]
     return _limited(rest, p, max_move)
+
+
+def _unit_rows(v: np.ndarray) -> np.ndarray:
+    """The rows of (M, 3) ``v`` made unit (zero rows stay zero)."""
+    return v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-12)
 
 
 def _limited(rest: np.ndarray, p: np.ndarray, max_move: float | None) -> np.ndarray:
@@ -319,23 +323,16 @@ def fit_skinned_items(skinned: list, body_faces: np.ndarray, rest_body: np.ndarr
     ji = np.concatenate([np.asarray(s.joint_indices) for s in skinned])
     jw = np.concatenate([np.asarray(s.joint_weights) for s in skinned])
     rows = np.flatnonzero(~np.asarray(free, dtype=bool))
+    offsets = np.concatenate([[0], np.cumsum([len(s.points) for s in skinned])]).astype(np.int64)
     new = rest.copy()
     if len(rows):
         foot = SurfaceQuery(body_faces, rest_body).closest(rest)
         clear0 = foot["distance"]
         new[rows] = fit_rest_points(rest[rows], ji[rows], jw[rows], mats, items[:, rows], body_faces, bodies,
                                     clear0[rows])
-        offsets = np.concatenate([[0], np.cumsum([len(s.points) for s in skinned])])
         under, over = layer_pairs(rest, clear0, offsets)
-        normal = foot["normal"] / np.maximum(np.linalg.norm(foot["normal"], axis=1, keepdims=True), 1e-12)
-        layered = keep_layer_order(rest, new, normal, clear0, under, over)
+        layered = keep_layer_order(rest, new, _unit_rows(foot["normal"]), clear0, under, over)
         new[rows] = layered[rows]  # the free and kept vertices stay where they are, whatever lies over them
-    out, a = [], 0
-    for s in skinned:
-        n = len(s.points)
-        m = s.copy_with_points(new[a:a + n])
-        m.name = s.name
-        m.joint_indices, m.joint_weights = s.joint_indices, s.joint_weights
-        out.append(m)
-        a += n
+    # the copies keep their names, faces and influences (copy_with_points)
+    out = [s.copy_with_points(new[a:b]) for s, a, b in zip(skinned, offsets[:-1], offsets[1:])]
     return out, np.linalg.norm(new - rest, axis=1)
