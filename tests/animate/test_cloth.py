@@ -230,6 +230,36 @@ def test_inertia_swings_then_settles():
     np.testing.assert_allclose(out[free_end, 0], 0.3, atol=0.02)    # settled under the moved edge
 
 
+def test_shot_starts_moving_with_the_body_after_preroll():
+    # a sheet hanging from its pinned edge while the body (and the edge) walks
+    # sideways at 1.2 m/s from the shot's first frame: after the preroll the
+    # cloth starts with its attachment line's velocity and hangs straight
+    # under the edge (known answer: a rigid translation); started at rest
+    # (reset, no preroll) it is left behind and swings back
+    pts, faces = grid_sheet(9, 0.8)
+    pts = pts[:, [1, 0, 2]] * np.array([1.0, -1.0, 1.0])   # in the yz plane, hanging from y = 0
+    w = np.ones(len(pts))
+    w[:9] = 0.0
+    bp, bf = FAR_BODY
+    free_end = np.arange(len(pts) - 9, len(pts))
+    speed, dt = np.array([1.2, 0.0, 0.0]), 1.0 / 30.0
+    lag = {}
+    for start in ("preroll", "rest"):
+        cs = ClothSolver(sheet_plan(faces), bf, bp, pts, weights=w, attach_alpha=1e9)
+        if start == "preroll":
+            settled = cs.preroll(bp, bp, lambda body: pts, dt)
+            np.testing.assert_allclose(settled, pts, atol=0.005)  # it already hung (stretched 2 mm)
+        else:
+            cs.reset(bp, pts)
+        worst = 0.0
+        for f in range(1, 16):
+            out = cs.step(bp + f * dt * speed, pts + f * dt * speed, dt)
+            worst = max(worst, float(np.abs(out[free_end, 0] - f * dt * speed[0]).max()))
+        lag[start] = worst
+    assert lag["preroll"] < 1e-9                   # moves rigidly with its edge
+    assert lag["rest"] > 0.1
+
+
 @pytest.mark.skipif(not HAVE_NUMBA, reason="numba not installed")
 @pytest.mark.parametrize("iterations", [1, 3])
 def test_numba_kernel_matches_numpy_twin(iterations):
