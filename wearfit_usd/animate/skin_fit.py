@@ -114,7 +114,12 @@ def _posed_terms(joint_indices: np.ndarray, joint_weights: np.ndarray, skin_mats
     ji = np.asarray(joint_indices, dtype=np.int64)
     jw = np.asarray(joint_weights, dtype=np.float64)
     s = np.asarray(skin_mats, dtype=np.float64)[:, :, :, :3]  # (F, J, 4, 3)
-    blended = np.einsum("mi,fmikc->fmkc", jw, s[:, ji])       # (F, M, 4, 3)
+    blended = np.zeros((len(s), len(ji), 4, 3))               # (F, M, 4, 3)
+    # one influence column at a time: gathering all of them at once,
+    # (F, M, I, 4, 3), was 600 MB for a suit over 40 example poses
+    for i in range(ji.shape[1]):
+        rows = np.flatnonzero(jw[:, i] > 0.0)
+        blended[:, rows] += jw[rows, i, None, None] * s[:, ji[rows, i]]
     return blended[:, :, :3, :], blended[:, :, 3, :]
 
 
@@ -174,6 +179,13 @@ def fit_rest_points(rest: np.ndarray, joint_indices: np.ndarray, joint_weights: 
     # bodies were three quarters of the time): the rest points move a few
     # millimetres between rounds
     candidates = [None] * f
+    # each frame's distances as last measured and the skinned points they
+    # were measured at: a vertex outside by more than ``want`` plus how far
+    # it has moved since cannot have come within ``want`` (the distance to
+    # a fixed set of triangles changes no faster than the point moves), so
+    # later rounds measure only the others
+    seen = np.full((f, m), -np.inf)
+    seen_at = np.zeros((f, m, 3))
     for _ in range(rounds):
         added = 0
         for k in range(f):
@@ -183,15 +195,22 @@ def fit_rest_points(rest: np.ndarray, joint_indices: np.ndarray, joint_weights: 
                 _, ci = query.centroid_tree.query(x, k=min(8, len(query.faces)))
                 _, vi = query.vertex_tree.query(x, k=1)
                 candidates[k] = np.concatenate([np.asarray(ci).reshape(m, -1), query.ring[vi]], axis=1)
-            c = query.closest(x, candidates=candidates[k], ring=False)
-            act = np.flatnonzero(c["distance"] < want)
-            if not len(act):
+            moved = np.linalg.norm(x - seen_at[k], axis=1)
+            rows = np.flatnonzero(~((seen[k] > 0.0) & (seen[k] - moved > want)))
+            if not len(rows):
                 continue
+            c = query.closest(x[rows], candidates=candidates[k][rows], ring=False)
+            seen[k, rows], seen_at[k, rows] = c["distance"], x[rows]
+            hit = np.flatnonzero(c["distance"] < want[rows])
+            if not len(hit):
+                continue
+            act = rows[hit]
+            c = {key: c[key][hit] for key in ("normal", "point")}
             added += len(act)
-            n = _unit_rows(c["normal"][act])  # the closest feature's pseudo-normal
+            n = _unit_rows(c["normal"])  # the closest feature's pseudo-normal
             # n . (p R + t) >= n . c + h, as a least-squares row g . p = rhs
             g = np.einsum("ac,akc->ak", n, R[k][act])
-            rhs = (np.einsum("ac,ac->a", n, c["point"][act]) + want[act]
+            rhs = (np.einsum("ac,ac->a", n, c["point"]) + want[act]
                    - np.einsum("ac,ac->a", n, t[k][act]))
             a_pen[act] += clearance_weight * g[:, :, None] * g[:, None, :]
             b_pen[act] += clearance_weight * g * rhs[:, None]
