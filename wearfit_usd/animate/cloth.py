@@ -47,14 +47,16 @@ its attachment line over that step (as if it had been moving with the body
 before the clip began). Started at rest, it was left behind by a body
 already walking at 1.2 m/s: a ponytail flew back nearly level in the first
 six frames of the CMU walk and took a second to settle. Chosen by
-measurement (CMU walk, run, Daz walk and pirouette, 45 frames, the three
-every-clip sweep pairs; figures over issue 17's limits, 41 started at
-rest): the attachment line's mean velocity 36; not kept: the whole body's
-best rigid motion (41: its turn swung the ponytail, 0.7 m above the body's
-centre), the body's mean velocity (40), the line's rigid motion (37), each
-vertex's target velocity (36, but on the long skirt starting mid-crouch in
-the CMU punch new penetrations 0.84 -> 1.12 %: a hem's targets extrapolate
-the hips' turn 70 cm down).
+measurement (CMU walk, run, Daz walk and pirouette, the first 45 frames
+from ``--start auto``, the three every-clip sweep pairs; figures over issue
+17's limits): at rest 33, the attachment line's mean velocity 30. Not kept,
+measured on the same clips from clip frame 0 (the converters' T-pose; at
+rest 41, the line's mean velocity 36): the whole body's best rigid motion
+(41: its turn swung the ponytail, 0.7 m above the body's centre), the
+body's mean velocity (40), the line's rigid motion (37), each vertex's
+target velocity (36; and on the long skirt starting mid-crouch in the CMU
+punch new penetrations 0.84 -> 1.12 %: a hem's targets extrapolate the
+hips' turn 70 cm down).
 
 Measured (CMU walk, ``ref_female_longskirt`` on ``body_female_heavy``, 2,075
 simulated vertices, 45 frames at 30 fps; see ``docs/motion_loose_parts.md``):
@@ -525,7 +527,7 @@ class ClothSolver:
         self.damping, self.friction, self.reach = float(damping), float(friction), float(reach)
         self.timings = {"frames": 0, "solve_s": 0.0, "solve_cpu_s": 0.0}
         self.rest_points = None
-        self._launch = False  # the next step starts the cloth moving with its targets (after preroll)
+        self._launch = False  # the next step starts the cloth moving with its attachment line (after preroll)
         if self.n_free == 0:
             return
         e = np.asarray(plan.mesh.edges, dtype=np.int64)
@@ -710,7 +712,7 @@ class ClothSolver:
         ``frames`` frames of ``dt`` (vertex positions blended with a
         smoothstep in time), the cloth pushed along; then ``settle`` more
         frames at ``body_to`` let it come to rest. The next :meth:`step`
-        (the shot's first) starts it with its targets' velocity.
+        (the shot's first) starts it moving (:meth:`_start_moving`).
 
         Parameters
         ----------
@@ -747,7 +749,7 @@ class ClothSolver:
         # the shot's own frames are timed from here on
         self.timings = {"frames": 0, "solve_s": 0.0, "solve_cpu_s": 0.0, "preroll_s": self.timings["solve_s"]}
         # the clip is already moving at its first frame: the first step gives
-        # the settled cloth its targets' velocity
+        # the settled cloth its attachment line's velocity
         self._launch = True
         return self._points(bound_to)
 
