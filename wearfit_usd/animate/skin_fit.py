@@ -203,7 +203,7 @@ def fit_rest_points(rest: np.ndarray, joint_indices: np.ndarray, joint_weights: 
                 _, vi = query.vertex_tree.query(x, k=1)
                 candidates[k] = np.concatenate([np.asarray(ci).reshape(m, -1), query.ring[vi]], axis=1)
             moved = np.linalg.norm(x - seen_at[k], axis=1)
-            rows = np.flatnonzero(~((seen[k] > 0.0) & (seen[k] - moved > want)))
+            rows = np.flatnonzero(~(seen[k] - moved > want))  # want >= 0: only vertices outside are skipped
             if not len(rows):
                 continue
             c = query.closest(x[rows], candidates=candidates[k][rows], ring=False)
