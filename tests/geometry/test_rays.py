@@ -1,9 +1,10 @@
 """The coverage rays' candidate search (geometry.rays): exact against brute force."""
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 
 from wearfit_usd.geometry import rays
-from wearfit_usd.geometry.rays import cast_rays, covering_points, ray_triangle
+from wearfit_usd.geometry.rays import cast_rays, centroid_reach, covering_points, march_rays, ray_triangle
 
 
 def _brute(orig, dirs, pts, faces, t0, t1):
@@ -39,17 +40,7 @@ def test_cast_rays_long_segments_and_mixed_triangle_sizes(monkeypatch, small_ray
     rays x triangles)."""
     monkeypatch.setattr(rays, "SMALL_RAYS", small_rays)
     rng = np.random.default_rng(7)
-    g = np.linspace(-0.1, 0.1, 21)
-    x, z = np.meshgrid(g, g)
-    pts = np.stack([x.ravel(), 0.03 * np.sin(20 * x.ravel()), z.ravel()], axis=1)
-    faces = []
-    for i in range(20):
-        for j in range(20):
-            a = i * 21 + j
-            faces += [[a, a + 1, a + 22], [a, a + 22, a + 21]]
-    big = np.array([[-0.3, 0.2, -0.3], [0.3, 0.25, -0.3], [0.0, 0.2, 0.3]])
-    pts = np.concatenate([pts, big])
-    faces = np.array(faces + [[441, 442, 443]])
+    pts, faces = _wavy_sheet_and_big_triangle()
     orig = rng.uniform(-0.15, 0.15, (500, 3))
     orig[:, 1] = rng.uniform(-0.4, 0.0, 500)
     dirs = rng.normal(size=(500, 3)) * [0.3, 1.0, 0.3]
@@ -60,3 +51,47 @@ def test_cast_rays_long_segments_and_mixed_triangle_sizes(monkeypatch, small_ray
     assert 100 < hit.any(axis=1).sum() < 500 and hit[:, -1].sum() > 10
     rows = np.flatnonzero(got >= 0)
     assert np.allclose(tt[rows, got[rows]], tt[rows].min(axis=1))
+
+
+def _wavy_sheet_and_big_triangle():
+    """A 20 x 20 cm sheet of 1 cm triangles waving 3 cm, and one triangle
+    60 cm across above it."""
+    g = np.linspace(-0.1, 0.1, 21)
+    x, z = np.meshgrid(g, g)
+    pts = np.stack([x.ravel(), 0.03 * np.sin(20 * x.ravel()), z.ravel()], axis=1)
+    faces = []
+    for i in range(20):
+        for j in range(20):
+            a = i * 21 + j
+            faces += [[a, a + 1, a + 22], [a, a + 22, a + 21]]
+    big = np.array([[-0.3, 0.2, -0.3], [0.3, 0.25, -0.3], [0.0, 0.2, 0.3]])
+    return np.concatenate([pts, big]), np.array(faces + [[441, 442, 443]])
+
+
+@pytest.mark.parametrize("samples", [1, 8])
+def test_march_rays_finds_the_first_hit_of_each_segment(samples):
+    """Against brute force: the nearest hit (smallest t) of each segment
+    from t_min to its own t_max, over 1 cm triangles and one 60x larger,
+    marching one sample or eight a round."""
+    pts, faces = _wavy_sheet_and_big_triangle()
+    rng = np.random.default_rng(3)
+    orig = rng.uniform(-0.15, 0.15, (400, 3))
+    orig[:, 1] = rng.uniform(-0.4, 0.1, 400)
+    dirs = rng.normal(size=(400, 3)) * [0.3, 1.0, 0.3]
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    t_max = rng.uniform(0.05, 0.8, 400)
+    tri = pts[faces]
+    got, t = march_rays(orig, dirs, tri, cKDTree(centroid_reach(tri)[0]), 0.001, t_max, samples=samples)
+    hit, _ = _brute(orig, dirs, pts, faces, 0.001, 0.8)
+    _, tt = ray_triangle(np.repeat(orig, len(faces), axis=0), np.repeat(dirs, len(faces), axis=0),
+                         np.tile(tri[:, 0], (400, 1)), np.tile(tri[:, 1], (400, 1)), np.tile(tri[:, 2], (400, 1)),
+                         0.001, 0.8)
+    tt = np.where(hit, tt.reshape(400, len(faces)), np.inf)
+    tt[tt > t_max[:, None]] = np.inf
+    want = np.isfinite(tt).any(axis=1)
+    assert np.array_equal(got >= 0, want)
+    assert 50 < want.sum() < 350 and (got == len(faces) - 1).sum() > 5
+    rows = np.flatnonzero(want)
+    assert np.allclose(t[rows], tt[rows].min(axis=1))
+    assert np.allclose(tt[rows, got[rows]], t[rows])
+    assert np.all(np.isinf(t[~want]))

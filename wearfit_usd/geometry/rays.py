@@ -172,3 +172,69 @@ def cast_rays(orig: np.ndarray, dirs: np.ndarray, points: np.ndarray, faces: np.
             continue
         _nearest_hits(ray[hit], cand[hit], t[hit], out)
     return out
+
+
+def march_rays(orig: np.ndarray, dirs: np.ndarray, tri: np.ndarray, centroid_tree: cKDTree, t_min: float,
+               t_max, reach: float | None = None, samples: int = 8) -> tuple[np.ndarray, np.ndarray]:
+    """Nearest triangle each ray segment meets, marching out from its start.
+
+    :func:`cast_rays` for segments that are long against the mesh (a ray
+    followed through the body to where it leaves) or for a mesh whose
+    KD-tree is already built: each segment is sampled every ``2 h`` from
+    ``t_min`` on, ``samples`` at a time; a triangle whose centroid lies
+    within ``h + reach`` of a sample (``reach`` the largest distance from a
+    triangle's centroid to its corners) is a candidate, tested exactly. A
+    ray stops at the round of its first hit, so a segment through empty
+    space costs only the tree's empty lookups and one through the surface
+    ends there. Every point of a round's stretch lies within ``h`` of one
+    of its samples, and every point of a triangle within ``reach`` of its
+    centroid: a hit is never missed, and the nearest is the first round's.
+
+    Parameters
+    ----------
+    orig, dirs : (R, 3) ray origins and unit directions.
+    tri : (F, 3, 3) the triangles' corners.
+    centroid_tree : KD-tree over the triangles' centroids (F, 3), in order.
+    t_min : where the segments start (>= 0).
+    t_max : float or (R,): where each ends.
+    reach : the triangles' largest centroid-to-corner distance, if known.
+    samples : samples per ray and round.
+
+    Returns
+    -------
+    (hit triangle (R,) int, -1 where none is met; its parameter t (R,), inf
+    where none).
+    """
+    orig = np.asarray(orig, dtype=np.float64)
+    dirs = np.asarray(dirs, dtype=np.float64)
+    n_rays = len(orig)
+    out = np.full(n_rays, -1, dtype=np.int64)
+    t_out = np.full(n_rays, np.inf)
+    if n_rays == 0 or len(tri) == 0:
+        return out, t_out
+    t_max = np.broadcast_to(np.asarray(t_max, dtype=np.float64), (n_rays,))
+    if reach is None:
+        reach = float(centroid_reach(tri)[1].max())
+    h = max(0.5 * reach, 1e-6)
+    radius = (h + reach) * (1.0 + 1e-9) + 1e-12
+    offsets = (np.arange(samples) + 0.5) * (2.0 * h)
+    active = np.flatnonzero(t_max >= t_min)
+    t0 = float(t_min)
+    while len(active):
+        t1 = t0 + samples * 2.0 * h
+        pts = (orig[active, None, :] + dirs[active, None, :] * (t0 + offsets)[None, :, None]).reshape(-1, 3)
+        pairs = cKDTree(pts).sparse_distance_matrix(centroid_tree, radius, output_type="ndarray")
+        if len(pairs):
+            key = np.unique(active[pairs["i"] // samples] * len(tri) + pairs["j"])
+            ray, cand = key // len(tri), key % len(tri)
+            hit, t = ray_triangle(orig[ray], dirs[ray], tri[cand, 0], tri[cand, 1], tri[cand, 2], t0, t1)
+            hit &= t <= t_max[ray]
+            if hit.any():
+                ray, cand, t = ray[hit], cand[hit], t[hit]
+                order = np.lexsort((t, ray))
+                ray, cand, t = ray[order], cand[order], t[order]
+                first = np.concatenate([[True], ray[1:] != ray[:-1]])
+                out[ray[first]], t_out[ray[first]] = cand[first], t[first]
+        active = active[(out[active] < 0) & (t_max[active] > t1)]
+        t0 = t1
+    return out, t_out
