@@ -7,7 +7,15 @@ import json
 import numpy as np
 import pytest
 
-from wearfit_usd.animate.measures import MEASURES, MotionLimits, MotionMeasures, cast_rays, ray_triangle, worst_frames
+from wearfit_usd.animate.measures import (
+    MEASURES,
+    MotionLimits,
+    MotionMeasures,
+    box_exit,
+    cast_rays,
+    ray_triangle,
+    worst_frames,
+)
 
 
 def grid(nx: int, ny: int, x0: float, y0: float, h: float, z: float = 0.0):
@@ -174,6 +182,39 @@ def test_a_part_of_the_body_pressed_over_the_sheet_is_a_fold_not_loss_or_penetra
     sunk[inside, 2] = 0.03                       # pushed up into the hovering box
     row = mm(body2, sunk)[0]
     assert row["pen_folded_pct"] == 0.0 and row["new_pen_pct"] == pytest.approx(100.0 * inside.mean())
+
+
+def test_a_probe_deep_inside_another_part_is_a_fold_however_far_its_ray_leaves():
+    """A deep box (a torso the skinning sinks a shoulder into) comes down
+    over the plane and the torn sheet: the plane's rays inside it leave the
+    box 25 cm up, beyond the 8 cm coverage reach, and are folded all the
+    same, not lost."""
+    sp_, sf = SHEET
+    faces, body0, body1 = plane_and_box((*IN_BOX, -0.2, 0.25))
+    mm = MotionMeasures(faces, body0, [("sheet", sp_, sf)])
+    inside = (sp_[:, 0] > IN_BOX[0]) & (sp_[:, 0] < IN_BOX[1])
+    torn = sp_.copy()
+    torn[inside, 2] += 0.3                       # through the box's top: no item over the plane there
+    row = mm(body1, torn)[0]
+    pv = body0[mm.covered[0]]
+    in_box = (pv[:, 0] > IN_BOX[0]) & (pv[:, 0] < IN_BOX[1])
+    assert row["coverage_folded_pct"] == pytest.approx(100.0 * in_box.mean())
+    raw = mm.coverage_loss(0, body1, mm.normals(body1), torn, folds=False)
+    assert row["coverage_loss_pct"] == pytest.approx(raw - row["coverage_folded_pct"])
+    assert row["coverage_loss_pct"] > 0.0        # the torn triangles' edges outside the box
+    # the same rays outside any box meet nothing and leave nothing: lost
+    faces, body0, body2 = plane_and_box((*IN_BOX, 0.35, 0.6))
+    mm = MotionMeasures(faces, body0, [("sheet", sp_, sf)])
+    row = mm(body2, torn)[0]
+    assert row["coverage_folded_pct"] == 0.0
+    assert row["coverage_loss_pct"] >= 100.0 * in_box.mean()
+
+
+def test_box_exit_distance():
+    o = np.array([[0.0, 0.0, 0.0], [0.5, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    d = np.array([[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.6, 0.8]])
+    t = box_exit(o, d, np.array([-1.0, -1.0, -1.0]), np.array([1.0, 1.0, 2.0]))
+    assert t == pytest.approx([1.0, 1.5, min(1.0 / 0.6, 2.0 / 0.8)])
 
 
 # -- a sleeve on a limb ---------------------------------------------------------

@@ -38,8 +38,9 @@ frame. Per item and per frame:
   skin is not seen from outside along its normal), a leg through the skirt
   or a tear does not. A body vertex *in a fold* is not counted as lost
   (``coverage_folded_pct`` reports them): its ray in this frame leaves
-  another part of the body (the vertex lies inside it) or meets the body
-  itself no farther than the static hit plus ``fold_margin``. The body then
+  another part of the body (the vertex lies inside it, however deep: the
+  ray is followed to the body's bounding box) or meets the body itself no
+  farther than the static hit plus ``fold_margin``. The body then
   holds the place the item held (an arm down against the torso, the thighs
   together): the vertex cannot be seen, and no item can lie there without
   entering the body.
@@ -80,7 +81,7 @@ from ..dress.body_stretch import local_triangles, stretch_range, vertex_stretch
 from ..errors import WearfitError
 from ..geometry.closest import SurfaceQuery, VertexNormals, point_and_normal
 from ..geometry.mesh import edge_length_percentile, edges, similarity_fit
-from ..geometry.rays import cast_rays, ray_triangle
+from ..geometry.rays import cast_rays, centroid_reach, march_rays, ray_triangle
 
 #: m: a body whose median edge is longer than this is low-poly: its coverage
 #: is probed over its triangles too (MakeHuman bodies 6-7 mm, a remeshed
@@ -91,6 +92,22 @@ PROBE_SPACING = 0.02
 
 MEASURES = ("stretch_p99", "stretch_max", "separation_p95_mm", "separation_max_mm", "coverage_loss_pct",
             "rigid_mm", "new_pen_pct", "through_pct", "coverage_folded_pct", "pen_folded_pct")
+
+
+def _leaves(tri: np.ndarray, dirs: np.ndarray) -> np.ndarray:
+    """(R,) bool: each ray (R, 3) meets its triangle (R, 3, 3) from behind.
+    The body's triangles face out: a ray whose first hit leaves through one
+    started inside."""
+    return np.einsum("ij,ij->i", np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), dirs) > 0
+
+
+def box_exit(origins: np.ndarray, dirs: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """(R,) the distance along each ray (origins (R, 3) inside or on the
+    box, dirs (R, 3) unit) to where it leaves the axis-aligned box lo..hi
+    (3,): the nearest of the three slab exits."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where(dirs > 0, (hi - origins) / dirs, np.where(dirs < 0, (lo - origins) / dirs, np.inf))
+    return np.maximum(t.min(axis=1), 0.0)
 
 
 def coverage_probes(points: np.ndarray, faces: np.ndarray, spacing: float) -> tuple[np.ndarray, np.ndarray]:
@@ -231,6 +248,7 @@ class MotionMeasures:
         self.rigid_groups = [[np.asarray(g, dtype=np.int64) for g in (gs or []) if len(g) >= 3]
                              for gs in (rigid_groups or [[] for _ in items])]
         self.query = SurfaceQuery(self.faces, self.body0)
+        self._frame, self._in_call = None, False  # this frame's triangles (:meth:`_frame_triangles`)
         self.normals = VertexNormals(self.faces, len(self.body0))
         foot = self.query.closest(self.items0)
         self.clearance0 = foot["distance"]
@@ -309,15 +327,29 @@ class MotionMeasures:
         if len(origins) == 0:
             return out
         eps = 1e-3  # off the origin's own triangles
-        hit = cast_rays(origins, dirs, body_points, self.faces, eps, self.reach)
+        tri, tree, reach = self._frame_triangles(body_points)
+        # followed on to where it leaves the body's bounding box: a ray may
+        # start deep inside another part (a shoulder the skinning sinks into
+        # the torso as the arm comes down leaves it 8-35 cm away:
+        # ref_female_longskirt's top on body_female_heavy, CMU walk)
+        ends = np.maximum(box_exit(origins, dirs, body_points.min(axis=0), body_points.max(axis=0)), self.reach)
+        hit, t = march_rays(origins, dirs, tri, tree, eps, ends, reach=reach)
         ok = np.flatnonzero(hit >= 0)
-        if len(ok):
-            tri = body_points[self.faces[hit[ok]]]
-            _, t = ray_triangle(origins[ok], dirs[ok], tri[:, 0], tri[:, 1], tri[:, 2], eps, self.reach)
-            # the body's triangles face out: a ray leaving through one started inside
-            leaves = np.einsum("ij,ij->i", np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), dirs[ok]) > 0
-            out[ok] = leaves | (t <= depth[ok])
+        out[ok] = _leaves(tri[hit[ok]], dirs[ok]) | (t[ok] <= depth[ok])
         return out
+
+    def _frame_triangles(self, body_points: np.ndarray):
+        """The body's triangles (T, 3, 3) at ``body_points``, a KD-tree over
+        their centroids and their largest centroid-to-corner distance; within
+        one :meth:`__call__` kept for its other calls on the same body."""
+        if self._frame is not None and self._frame[0] is body_points:
+            return self._frame[1:]
+        q = self.query if self.query.points is body_points else self.query.moved_to(body_points)
+        tri = body_points[self.faces]
+        frame = (body_points, tri, q.centroid_tree, float(centroid_reach(tri)[1].max()))
+        if self._in_call:
+            self._frame = frame
+        return frame[1:]
 
     def _slice(self, i: int) -> slice:
         return slice(int(self.offsets[i]), int(self.offsets[i + 1]))
@@ -375,8 +407,14 @@ class MotionMeasures:
         stacked (M, 3), both in the static dress's space. Returns one dict
         per item with the keys of :data:`MEASURES` (None where a measure
         does not apply)."""
-        body = np.ascontiguousarray(body_points, dtype=np.float64)
-        pts = np.ascontiguousarray(item_points, dtype=np.float64)
+        self._frame, self._in_call = None, True
+        try:
+            return self._measure(np.ascontiguousarray(body_points, dtype=np.float64),
+                                 np.ascontiguousarray(item_points, dtype=np.float64))
+        finally:
+            self._frame, self._in_call = None, False
+
+    def _measure(self, body: np.ndarray, pts: np.ndarray) -> list[dict]:
         # stretch against the body's own under each edge
         vr = vertex_stretch(self.triangles, self.body0, body, self.faces)
         _, hi = stretch_range(self.items0, self.edges, self.triangles, self.body0, body, self.faces,
