@@ -144,6 +144,24 @@ def plane_and_box(frame_box):
 IN_BOX = (-0.1045, 0.0045, -0.3, 0.3)        # over 11 of the sheet's 41 columns, across the sheet
 
 
+def torn_under_box(mm, body0, body1):
+    """The sheet's columns under the box lifted 30 cm (torn away) on the
+    frame body1: the plane's probes under the box are folded, the rest of
+    the tear (its triangles' edges outside the box) lost. Returns (the torn
+    sheet, which statically covered probes lie under the box)."""
+    sp_, _ = SHEET
+    torn = sp_.copy()
+    torn[(sp_[:, 0] > IN_BOX[0]) & (sp_[:, 0] < IN_BOX[1]), 2] += 0.3
+    row = mm(body1, torn)[0]
+    pv = body0[mm.covered[0]]
+    in_box = (pv[:, 0] > IN_BOX[0]) & (pv[:, 0] < IN_BOX[1])
+    raw = mm.coverage_loss(0, body1, mm.normals(body1), torn, folds=False)
+    assert row["coverage_folded_pct"] == pytest.approx(100.0 * in_box.mean())
+    assert row["coverage_loss_pct"] == pytest.approx(raw - row["coverage_folded_pct"])
+    assert row["coverage_loss_pct"] > 0.0
+    return torn, in_box
+
+
 def test_a_part_of_the_body_pressed_over_the_sheet_is_a_fold_not_loss_or_penetration():
     """A box (an arm) comes down over the plane (the torso) and the sheet
     between them: the sheet's vertices inside the box are not new
@@ -160,16 +178,8 @@ def test_a_part_of_the_body_pressed_over_the_sheet_is_a_fold_not_loss_or_penetra
     assert row["pen_folded_pct"] == pytest.approx(100.0 * inside.mean())
     assert row["coverage_loss_pct"] == 0.0       # the sheet still meets every ray
     # the sheet torn away under the box: the plane inside the box is folded, the rest of the tear lost
-    torn = sp_.copy()
-    torn[inside, 2] += 0.3
-    row = mm(body1, torn)[0]
-    pv = body0[mm.covered[0]]
-    in_box = (pv[:, 0] > IN_BOX[0]) & (pv[:, 0] < IN_BOX[1])
+    torn, in_box = torn_under_box(mm, body0, body1)
     assert in_box.sum() == 10 * 20
-    raw = mm.coverage_loss(0, body1, mm.normals(body1), torn, folds=False)
-    assert row["coverage_folded_pct"] == pytest.approx(100.0 * in_box.mean())
-    assert row["coverage_loss_pct"] == pytest.approx(raw - row["coverage_folded_pct"])
-    assert row["coverage_loss_pct"] > 0.0        # the torn triangles' edges outside the box
     # the box 2 cm over the plane (12 mm beyond the sheet's 5 mm and the 5 mm margin): no fold
     faces, body0, body2 = plane_and_box((*IN_BOX, 0.02, 0.06))
     mm = MotionMeasures(faces, body0, [("sheet", sp_, sf)])
@@ -192,16 +202,7 @@ def test_a_probe_deep_inside_another_part_is_a_fold_however_far_its_ray_leaves()
     sp_, sf = SHEET
     faces, body0, body1 = plane_and_box((*IN_BOX, -0.2, 0.25))
     mm = MotionMeasures(faces, body0, [("sheet", sp_, sf)])
-    inside = (sp_[:, 0] > IN_BOX[0]) & (sp_[:, 0] < IN_BOX[1])
-    torn = sp_.copy()
-    torn[inside, 2] += 0.3                       # through the box's top: no item over the plane there
-    row = mm(body1, torn)[0]
-    pv = body0[mm.covered[0]]
-    in_box = (pv[:, 0] > IN_BOX[0]) & (pv[:, 0] < IN_BOX[1])
-    assert row["coverage_folded_pct"] == pytest.approx(100.0 * in_box.mean())
-    raw = mm.coverage_loss(0, body1, mm.normals(body1), torn, folds=False)
-    assert row["coverage_loss_pct"] == pytest.approx(raw - row["coverage_folded_pct"])
-    assert row["coverage_loss_pct"] > 0.0        # the torn triangles' edges outside the box
+    torn, in_box = torn_under_box(mm, body0, body1)   # torn through the box's top
     # the same rays outside any box meet nothing and leave nothing: lost
     faces, body0, body2 = plane_and_box((*IN_BOX, 0.35, 0.6))
     mm = MotionMeasures(faces, body0, [("sheet", sp_, sf)])
