@@ -95,3 +95,17 @@ def test_march_rays_finds_the_first_hit_of_each_segment(samples):
     assert np.allclose(t[rows], tt[rows].min(axis=1))
     assert np.allclose(tt[rows, got[rows]], t[rows])
     assert np.all(np.isinf(t[~want]))
+
+
+def test_march_rays_refuses_endless_segments_and_ends_zero_directions():
+    """A zero direction (a degenerate triangle's normal) meets nothing and
+    the march ends at its finite end; an infinite end is refused."""
+    pts, faces = _wavy_sheet_and_big_triangle()
+    tri = pts[faces]
+    tree = cKDTree(centroid_reach(tri)[0])
+    orig = np.array([[0.0, -0.2, 0.0], [0.0, -0.2, 0.0]])
+    dirs = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 0.0]])
+    hit, t = march_rays(orig, dirs, tri, tree, 0.001, 1.0)
+    assert hit[0] >= 0 and np.isfinite(t[0]) and hit[1] == -1 and np.isinf(t[1])
+    with pytest.raises(ValueError):
+        march_rays(orig, dirs, tri, tree, 0.001, np.inf)

@@ -332,7 +332,9 @@ class MotionMeasures:
         # start deep inside another part (a shoulder the skinning sinks into
         # the torso as the arm comes down leaves it 8-35 cm away:
         # ref_female_longskirt's top on body_female_heavy, CMU walk)
-        ends = np.maximum(box_exit(origins, dirs, body_points.min(axis=0), body_points.max(axis=0)), self.reach)
+        lo, hi = body_points.min(axis=0), body_points.max(axis=0)
+        # (a zero direction, from a degenerate triangle, never leaves: capped at the box's diagonal)
+        ends = np.clip(box_exit(origins, dirs, lo, hi), self.reach, max(float(np.linalg.norm(hi - lo)), self.reach))
         hit, t = march_rays(origins, dirs, tri, tree, eps, ends, reach=reach)
         ok = np.flatnonzero(hit >= 0)
         out[ok] = _leaves(tri[hit[ok]], dirs[ok]) | (t[ok] <= depth[ok])

@@ -213,6 +213,8 @@ def march_rays(orig: np.ndarray, dirs: np.ndarray, tri: np.ndarray, centroid_tre
     if n_rays == 0 or len(tri) == 0:
         return out, t_out
     t_max = np.broadcast_to(np.asarray(t_max, dtype=np.float64), (n_rays,))
+    if not np.all(np.isfinite(t_max)) or samples < 1:
+        raise ValueError("march_rays needs finite segment ends and at least one sample a round")
     if reach is None:
         reach = float(centroid_reach(tri)[1].max())
     h = max(0.5 * reach, 1e-6)
