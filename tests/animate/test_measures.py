@@ -11,7 +11,6 @@ from wearfit_usd.animate.measures import (
     MEASURES,
     MotionLimits,
     MotionMeasures,
-    box_exit,
     cast_rays,
     ray_triangle,
     worst_frames,
@@ -209,13 +208,6 @@ def test_a_probe_deep_inside_another_part_is_a_fold_however_far_its_ray_leaves()
     row = mm(body2, torn)[0]
     assert row["coverage_folded_pct"] == 0.0
     assert row["coverage_loss_pct"] >= 100.0 * in_box.mean()
-
-
-def test_box_exit_distance():
-    o = np.array([[0.0, 0.0, 0.0], [0.5, 0.0, 0.0], [0.0, 0.0, 0.0]])
-    d = np.array([[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.6, 0.8]])
-    t = box_exit(o, d, np.array([-1.0, -1.0, -1.0]), np.array([1.0, 1.0, 2.0]))
-    assert t == pytest.approx([1.0, 1.5, min(1.0 / 0.6, 2.0 / 0.8)])
 
 
 # -- a sleeve on a limb ---------------------------------------------------------

@@ -4,7 +4,7 @@ import pytest
 from scipy.spatial import cKDTree
 
 from wearfit_usd.geometry import rays
-from wearfit_usd.geometry.rays import cast_rays, centroid_reach, covering_points, march_rays, ray_triangle
+from wearfit_usd.geometry.rays import box_exit, cast_rays, centroid_reach, covering_points, march_rays, ray_triangle
 
 
 def _brute(orig, dirs, pts, faces, t0, t1):
@@ -109,3 +109,10 @@ def test_march_rays_refuses_endless_segments_and_ends_zero_directions():
     assert hit[0] >= 0 and np.isfinite(t[0]) and hit[1] == -1 and np.isinf(t[1])
     with pytest.raises(ValueError):
         march_rays(orig, dirs, tri, tree, 0.001, np.inf)
+
+
+def test_box_exit_distance():
+    o = np.array([[0.0, 0.0, 0.0], [0.5, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    d = np.array([[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.6, 0.8]])
+    t = box_exit(o, d, np.array([-1.0, -1.0, -1.0]), np.array([1.0, 1.0, 2.0]))
+    assert t == pytest.approx([1.0, 1.5, min(1.0 / 0.6, 2.0 / 0.8)])

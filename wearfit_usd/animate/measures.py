@@ -81,7 +81,7 @@ from ..dress.body_stretch import local_triangles, stretch_range, vertex_stretch
 from ..errors import WearfitError
 from ..geometry.closest import SurfaceQuery, VertexNormals, point_and_normal
 from ..geometry.mesh import edge_length_percentile, edges, similarity_fit
-from ..geometry.rays import cast_rays, centroid_reach, march_rays, ray_triangle
+from ..geometry.rays import box_exit, cast_rays, centroid_reach, march_rays, ray_triangle
 
 #: m: a body whose median edge is longer than this is low-poly: its coverage
 #: is probed over its triangles too (MakeHuman bodies 6-7 mm, a remeshed
@@ -99,15 +99,6 @@ def _leaves(tri: np.ndarray, dirs: np.ndarray) -> np.ndarray:
     The body's triangles face out: a ray whose first hit leaves through one
     started inside."""
     return np.einsum("ij,ij->i", np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), dirs) > 0
-
-
-def box_exit(origins: np.ndarray, dirs: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """(R,) the distance along each ray (origins (R, 3) inside or on the
-    box, dirs (R, 3) unit) to where it leaves the axis-aligned box lo..hi
-    (3,): the nearest of the three slab exits."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = np.where(dirs > 0, (hi - origins) / dirs, np.where(dirs < 0, (lo - origins) / dirs, np.inf))
-    return np.maximum(t.min(axis=1), 0.0)
 
 
 def coverage_probes(points: np.ndarray, faces: np.ndarray, spacing: float) -> tuple[np.ndarray, np.ndarray]:

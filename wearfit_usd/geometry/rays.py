@@ -89,12 +89,15 @@ def covering_points(tri: np.ndarray, radius: float, centres=None) -> tuple[np.nd
 SMALL_RAYS = 150
 
 
-def _nearest_hits(ray, cand, t, out):
-    """out[ray] = the candidate of the nearest hit (smallest |t|) of each ray."""
+def _nearest_hits(ray, cand, t, out, t_out=None):
+    """out[ray] = the candidate of the nearest hit (smallest |t|) of each
+    ray; t_out[ray] its t, if given."""
     order = np.lexsort((np.abs(t), ray))
-    ray, cand = ray[order], cand[order]
+    ray, cand, t = ray[order], cand[order], t[order]
     first = np.concatenate([[True], ray[1:] != ray[:-1]])
     out[ray[first]] = cand[first]
+    if t_out is not None:
+        t_out[ray[first]] = t[first]
     return out
 
 
@@ -174,6 +177,15 @@ def cast_rays(orig: np.ndarray, dirs: np.ndarray, points: np.ndarray, faces: np.
     return out
 
 
+def box_exit(origins: np.ndarray, dirs: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """(R,) the distance along each ray (origins (R, 3) inside or on the
+    box, dirs (R, 3) unit) to where it leaves the axis-aligned box lo..hi
+    (3,): the nearest of the three slab exits (inf for a zero direction)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where(dirs > 0, (hi - origins) / dirs, np.where(dirs < 0, (lo - origins) / dirs, np.inf))
+    return np.maximum(t.min(axis=1), 0.0)
+
+
 def march_rays(orig: np.ndarray, dirs: np.ndarray, tri: np.ndarray, centroid_tree: cKDTree, t_min: float,
                t_max, reach: float | None = None, samples: int = 8) -> tuple[np.ndarray, np.ndarray]:
     """Nearest triangle each ray segment meets, marching out from its start.
@@ -232,11 +244,7 @@ def march_rays(orig: np.ndarray, dirs: np.ndarray, tri: np.ndarray, centroid_tre
             hit, t = ray_triangle(orig[ray], dirs[ray], tri[cand, 0], tri[cand, 1], tri[cand, 2], t0, t1)
             hit &= t <= t_max[ray]
             if hit.any():
-                ray, cand, t = ray[hit], cand[hit], t[hit]
-                order = np.lexsort((t, ray))
-                ray, cand, t = ray[order], cand[order], t[order]
-                first = np.concatenate([[True], ray[1:] != ray[:-1]])
-                out[ray[first]], t_out[ray[first]] = cand[first], t[first]
+                _nearest_hits(ray[hit], cand[hit], t[hit], out, t_out)   # t >= t_min >= 0
         active = active[(out[active] < 0) & (t_max[active] > t1)]
         t0 = t1
     return out, t_out
