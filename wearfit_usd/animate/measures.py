@@ -72,6 +72,7 @@ frame. Per item and per frame:
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+from typing import NamedTuple
 
 import numpy as np
 import scipy.sparse as sp
@@ -192,6 +193,19 @@ def layer_pairs(points: np.ndarray, clearance: np.ndarray, offsets: np.ndarray, 
     return under.astype(np.int64), safe[under, first[under]].astype(np.int64)
 
 
+class BodyFrame(NamedTuple):
+    """The body in one frame as the fold test casts against it: its
+    triangles (T, 3, 3), a KD-tree over their centroids, their largest
+    centroid-to-corner distance, the bounding box lo, hi (3,) and the
+    longest ray it follows (the box's diagonal, at least the reach)."""
+    tri: np.ndarray
+    tree: cKDTree
+    reach: float
+    lo: np.ndarray
+    hi: np.ndarray
+    longest: float
+
+
 class MotionMeasures:
     """``MotionMeasures(...)(body_f (N, 3), items_f (M, 3)) -> [dict per item]``:
     the motion measures of one frame against the static dress (see the
@@ -239,7 +253,6 @@ class MotionMeasures:
         self.rigid_groups = [[np.asarray(g, dtype=np.int64) for g in (gs or []) if len(g) >= 3]
                              for gs in (rigid_groups or [[] for _ in items])]
         self.query = SurfaceQuery(self.faces, self.body0)
-        self._frame, self._in_call = None, False  # this frame's triangles (:meth:`_frame_triangles`)
         self.normals = VertexNormals(self.faces, len(self.body0))
         foot = self.query.closest(self.items0)
         self.clearance0 = foot["distance"]
@@ -309,8 +322,16 @@ class MotionMeasures:
             d[~vert] = fn / np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-300)
         return o, d
 
-    def _folded(self, body_points: np.ndarray, origins: np.ndarray, dirs: np.ndarray,
-                depth: np.ndarray) -> np.ndarray:
+    def body_frame(self, body_points: np.ndarray) -> BodyFrame:
+        """The fold test's view of the body (N, 3) in one frame
+        (:class:`BodyFrame`), built once per frame and passed to its tests."""
+        q = self.query if self.query.points is body_points else self.query.moved_to(body_points)
+        tri = body_points[self.faces]
+        lo, hi = body_points.min(axis=0), body_points.max(axis=0)
+        return BodyFrame(tri, q.centroid_tree, float(centroid_reach(tri)[1].max()), lo, hi,
+                         max(float(np.linalg.norm(hi - lo)), self.reach))
+
+    def _folded(self, frame: BodyFrame, origins: np.ndarray, dirs: np.ndarray, depth: np.ndarray) -> np.ndarray:
         """(P,) bool: the ray from each origin (on the body) along its unit
         dir (P, 3) leaves the body first (the origin lies inside another
         part of it) or enters it within ``depth`` (P,) metres: a fold."""
@@ -318,43 +339,30 @@ class MotionMeasures:
         if len(origins) == 0:
             return out
         eps = 1e-3  # off the origin's own triangles
-        tri, tree, reach = self._frame_triangles(body_points)
         # followed on to where it leaves the body's bounding box: a ray may
         # start deep inside another part (a shoulder the skinning sinks into
         # the torso as the arm comes down leaves it 8-35 cm away:
-        # ref_female_longskirt's top on body_female_heavy, CMU walk)
-        lo, hi = body_points.min(axis=0), body_points.max(axis=0)
-        # (a zero direction, from a degenerate triangle, never leaves: capped at the box's diagonal)
-        ends = np.clip(box_exit(origins, dirs, lo, hi), self.reach, max(float(np.linalg.norm(hi - lo)), self.reach))
-        hit, t = march_rays(origins, dirs, tri, tree, eps, ends, reach=reach)
+        # ref_female_longskirt's top on body_female_heavy, CMU walk); a zero
+        # direction, from a degenerate triangle, never leaves: capped at the
+        # box's diagonal
+        ends = np.clip(box_exit(origins, dirs, frame.lo, frame.hi), self.reach, frame.longest)
+        hit, t = march_rays(origins, dirs, frame.tri, frame.tree, eps, ends, reach=frame.reach)
         ok = np.flatnonzero(hit >= 0)
-        out[ok] = _leaves(tri[hit[ok]], dirs[ok]) | (t[ok] <= depth[ok])
+        out[ok] = _leaves(frame.tri[hit[ok]], dirs[ok]) | (t[ok] <= depth[ok])
         return out
-
-    def _frame_triangles(self, body_points: np.ndarray):
-        """The body's triangles (T, 3, 3) at ``body_points``, a KD-tree over
-        their centroids and their largest centroid-to-corner distance; within
-        one :meth:`__call__` kept for its other calls on the same body."""
-        if self._frame is not None and self._frame[0] is body_points:
-            return self._frame[1:]
-        q = self.query if self.query.points is body_points else self.query.moved_to(body_points)
-        tri = body_points[self.faces]
-        frame = (body_points, tri, q.centroid_tree, float(centroid_reach(tri)[1].max()))
-        if self._in_call:
-            self._frame = frame
-        return frame[1:]
 
     def _slice(self, i: int) -> slice:
         return slice(int(self.offsets[i]), int(self.offsets[i + 1]))
 
     def coverage_loss(self, i: int, body_points: np.ndarray, body_normals: np.ndarray,
-                      item_points: np.ndarray, folds: bool = True):
+                      item_points: np.ndarray, folds: bool = True, frame: BodyFrame | None = None):
         """Percent of item i's statically covered body vertices (probes on a
         low-poly body) not covered now; body_points/body_normals (N, 3)
         (unit vertex normals), item_points (M_i, 3) this item's points.
         None if it covers nothing. With ``folds`` (the default) returns
         (loss, folded): the probes in a fold (see the module docstring) are
-        counted in ``folded``, not lost."""
+        counted in ``folded``, not lost; ``frame``: :meth:`body_frame` of
+        body_points if already built."""
         v = self.covered[i]
         if len(v) == 0:
             return (None, None) if folds else None
@@ -392,7 +400,8 @@ class MotionMeasures:
         if not folds:
             return 100.0 * float(np.sum(~hit)) / len(v)
         miss = np.flatnonzero(~hit)
-        fold = self._folded(body_points, o[miss], d[miss], np.maximum(self.cover_t[i][miss], 0.0) + self.fold_margin)
+        frame = self.body_frame(body_points) if frame is None else frame
+        fold = self._folded(frame, o[miss], d[miss], np.maximum(self.cover_t[i][miss], 0.0) + self.fold_margin)
         return 100.0 * float(np.sum(~fold)) / len(v), 100.0 * float(np.sum(fold)) / len(v)
 
     def __call__(self, body_points: np.ndarray, item_points: np.ndarray) -> list[dict]:
@@ -400,14 +409,8 @@ class MotionMeasures:
         stacked (M, 3), both in the static dress's space. Returns one dict
         per item with the keys of :data:`MEASURES` (None where a measure
         does not apply)."""
-        self._frame, self._in_call = None, True
-        try:
-            return self._measure(np.ascontiguousarray(body_points, dtype=np.float64),
-                                 np.ascontiguousarray(item_points, dtype=np.float64))
-        finally:
-            self._frame, self._in_call = None, False
-
-    def _measure(self, body: np.ndarray, pts: np.ndarray) -> list[dict]:
+        body = np.ascontiguousarray(body_points, dtype=np.float64)
+        pts = np.ascontiguousarray(item_points, dtype=np.float64)
         # stretch against the body's own under each edge
         vr = vertex_stretch(self.triangles, self.body0, body, self.faces)
         _, hi = stretch_range(self.items0, self.edges, self.triangles, self.body0, body, self.faces,
@@ -418,6 +421,7 @@ class MotionMeasures:
         self.query.update(body)
         dist = self.query.signed_distance(pts)
         normals = self.normals(body)
+        frame = self.body_frame(body)  # the fold tests' (after the update: its tree is the query's)
         rows = []
         for i, name in enumerate(self.names):
             sl = self._slice(i)
@@ -432,7 +436,8 @@ class MotionMeasures:
                 row["separation_max_mm"] = float(sep.max())
             else:
                 row["separation_p95_mm"] = row["separation_max_mm"] = None
-            row["coverage_loss_pct"], row["coverage_folded_pct"] = self.coverage_loss(i, body, normals, pts[sl])
+            row["coverage_loss_pct"], row["coverage_folded_pct"] = self.coverage_loss(
+                i, body, normals, pts[sl], frame=frame)
             groups = self.rigid_groups[i]
             if groups:
                 p0, p1 = self.items0[sl], pts[sl]
@@ -447,7 +452,7 @@ class MotionMeasures:
             new = np.flatnonzero(out0 & (dist[sl] < -self.margin)) + sl.start
             # over a fold: the static foot point, carried by its triangle, and its normal
             foot, fn = point_and_normal(body, normals, self.faces, self.foot_tri[new], self.foot_bary[new])
-            fold = self._folded(body, foot, fn, np.maximum(self.clearance0[new], 0.0) + self.fold_margin)
+            fold = self._folded(frame, foot, fn, np.maximum(self.clearance0[new], 0.0) + self.fold_margin)
             n_out = int(out0.sum())
             row["new_pen_pct"] = 100.0 * float(np.sum(~fold)) / n_out if n_out else 0.0
             row["pen_folded_pct"] = 100.0 * float(np.sum(fold)) / n_out if n_out else 0.0
