@@ -10,9 +10,15 @@ and the offset factor of its clearance, as
 allowed length moves its ends toward each other; then every vertex at such
 an edge takes the mean of its moves (gathered over its own edges in
 ascending order, as the full loop summed them), cut where it would go into
-the body. The
-numpy twin is :meth:`animate.strain_limit.StrainLimit` itself (its
-``compiled=False`` path); a test runs both.
+the body; then every weld group (item vertices joined by sub-millimetre
+edges, :class:`animate.short_edges.ShortEdgeWeld`) is clamped to its rest
+reach about its centre, so a pass cannot open a weld that the weld after
+the limit would close by stretching the group's other edges. An edge a
+pass brought exactly to its bound (one end fixed) is over it or not by its
+last bit, which the two paths may round differently; they agree where no
+such tie decides. The numpy twin is
+:meth:`animate.strain_limit.StrainLimit` itself (its ``compiled=False``
+path); a test runs both.
 """
 from __future__ import annotations
 
@@ -23,6 +29,12 @@ import numpy as np
 
 from .jit import jit
 
+#: a weld group's member is clamped back only when farther from its group's
+#: centre than its rest reach times (1 + this): one the last pass's clamp left
+#: at its reach (to rounding) is not moved again, and the compiled pass and
+#: its numpy twin, which round the centre differently, agree on which moved
+REACH_SLACK = 1e-9
+
 
 class StrainRest(NamedTuple):
     """What a frame's pass needs from the rest state, built once.
@@ -32,7 +44,11 @@ class StrainRest(NamedTuple):
     edge Gram entries (e1.e1, e1.e2, e2.e2); foot_tri (M,) int64 and
     foot_bary (M, 3) each vertex's closest skin point at rest, foot0 (M, 3)
     that point and normal0 (M, 3) the unit normal there (interpolated
-    vertex normals); clear0 (M,) the vertex's rest clearance."""
+    vertex normals); clear0 (M,) the vertex's rest clearance; inc_ptr,
+    inc_edge the edges at each vertex (:func:`edge_incidence`); group_ptr
+    (G + 1,), group_rows (R,) int64 the weld groups' members as CSR rows and
+    group_reach (R,) each member's rest distance from its group's centre
+    (:func:`weld_groups`)."""
     edges: np.ndarray
     len0: np.ndarray
     local: np.ndarray
@@ -45,6 +61,9 @@ class StrainRest(NamedTuple):
     clear0: np.ndarray
     inc_ptr: np.ndarray
     inc_edge: np.ndarray
+    group_ptr: np.ndarray
+    group_rows: np.ndarray
+    group_reach: np.ndarray
 
 
 def edge_incidence(edges: np.ndarray, n_points: int) -> tuple[np.ndarray, np.ndarray]:
@@ -57,6 +76,25 @@ def edge_incidence(edges: np.ndarray, n_points: int) -> tuple[np.ndarray, np.nda
     ptr = np.zeros(n_points + 1, dtype=np.int64)
     np.cumsum(np.bincount(ends, minlength=n_points), out=ptr[1:])
     return ptr, (order // 2).astype(np.int64)
+
+
+def weld_groups(rows: np.ndarray, group: np.ndarray, reach: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Weld groups (:class:`animate.short_edges.ShortEdgeWeld`'s ``rows``,
+    ``group`` 0..G-1 and ``reach``, each (R,)) as :class:`StrainRest`'s
+    (group_ptr (G + 1,) int64, group_rows (R,) int64 ascending within a
+    group, group_reach (R,) float64 in that order); empty: no groups."""
+    rows = np.asarray(rows, dtype=np.int64).ravel()
+    group = np.asarray(group, dtype=np.int64).ravel()
+    reach = np.asarray(reach, dtype=np.float64).ravel()
+    if not (rows.shape == group.shape == reach.shape):
+        raise ValueError(f"rows {rows.shape}, group {group.shape} and reach {reach.shape} do not match")
+    n = int(group.max()) + 1 if len(group) else 0
+    if len(group) and group.min() < 0:
+        raise ValueError("negative weld group")
+    order = np.lexsort((rows, group))
+    ptr = np.zeros(n + 1, dtype=np.int64)
+    np.cumsum(np.bincount(group, minlength=n), out=ptr[1:])
+    return ptr, rows[order], reach[order]
 
 
 @jit(inline=True)
@@ -200,6 +238,44 @@ def strain_frame(rest, body, normals, points, w, limit, iterations, margin, caps
     return _strain_frame(rest, body, normals, points, w, limit, iterations, margin, caps, planes)
 
 
+@jit(inline=True)
+def _move(rest, body, points, planes, margin, v, sx, sy, sz):
+    """Move vertex v by (sx, sy, sz), the part into the body cut to what
+    keeps it ``margin`` outside the skin under it (its rest closest
+    triangle on this body) and not behind its plane (``planes[v]``)."""
+    t = rest.foot_tri[v]
+    i, j, k2 = rest.faces[t, 0], rest.faces[t, 1], rest.faces[t, 2]
+    e1x, e1y, e1z = body[j, 0] - body[i, 0], body[j, 1] - body[i, 1], body[j, 2] - body[i, 2]
+    e2x, e2y, e2z = body[k2, 0] - body[i, 0], body[k2, 1] - body[i, 1], body[k2, 2] - body[i, 2]
+    nx = e1y * e2z - e1z * e2y
+    ny = e1z * e2x - e1x * e2z
+    nz = e1x * e2y - e1y * e2x
+    nl = max(math.sqrt(nx * nx + ny * ny + nz * nz), 1e-300)
+    nx, ny, nz = nx / nl, ny / nl, nz / nl
+    px, py, pz = 0.0, 0.0, 0.0
+    for q in range(3):
+        bw = rest.foot_bary[v, q]
+        vq = rest.faces[t, q]
+        px += bw * body[vq, 0]
+        py += bw * body[vq, 1]
+        pz += bw * body[vq, 2]
+    clear = (points[v, 0] - px) * nx + (points[v, 1] - py) * ny + (points[v, 2] - pz) * nz
+    inward = -(sx * nx + sy * ny + sz * nz)
+    cut = max(inward - max(clear - margin, 0.0), 0.0)
+    sx += cut * nx
+    sy += cut * ny
+    sz += cut * nz
+    # and not behind this frame's own plane, where it has one
+    gx, gy, gz = planes[v, 3], planes[v, 4], planes[v, 5]
+    clear = (points[v, 0] - planes[v, 0]) * gx + (points[v, 1] - planes[v, 1]) * gy + \
+        (points[v, 2] - planes[v, 2]) * gz
+    inward = -(sx * gx + sy * gy + sz * gz)
+    cut = max(inward - max(clear, 0.0), 0.0)
+    points[v, 0] += sx + cut * gx
+    points[v, 1] += sy + cut * gy
+    points[v, 2] += sz + cut * gz
+
+
 @jit
 def _strain_frame(rest, body, normals, points, w, limit, iterations, margin, caps, planes):
     """:func:`strain_frame`'s passes. Each pass: the edges to look at (all
@@ -207,8 +283,10 @@ def _strain_frame(rest, body, normals, points, w, limit, iterations, margin, cap
     their length) each store their correction; then each vertex at an
     edge over its cap gathers its corrections over its own edges in
     ascending edge order (the Jacobi mean, summed as one loop over all
-    edges would) and moves. Work per pass is that of the active edges and
-    vertices, not of the whole item."""
+    edges would) and moves; then the weld groups are clamped to their rest
+    reach, a member the clamp moved joining the next pass. Work per pass is
+    that of the active edges and vertices (and the weld groups), not of the
+    whole item."""
     n_e = rest.edges.shape[0]
     m = points.shape[0]
     cap, exact, tri_hi, vhi, feet, have_foot = caps
@@ -223,6 +301,7 @@ def _strain_frame(rest, body, normals, points, w, limit, iterations, margin, cap
     ends = np.empty(m, dtype=np.int64)                # the vertices at an edge over its cap
     vert_seen = np.full(m, -1, dtype=np.int64)
     moved = np.empty(m, dtype=np.int64)
+    moved_seen = np.full(m, -1, dtype=np.int64)
     for it in range(iterations):
         n_ends = 0
         for k in range(n_active):
@@ -284,41 +363,36 @@ def _strain_frame(rest, body, normals, points, w, limit, iterations, margin, cap
                     cnt += 1.0
             if not cnt > 0.0:
                 continue
+            _move(rest, body, points, planes, margin, v, sx / cnt, sy / cnt, sz / cnt)
             moved[n_moved] = v
             n_moved += 1
-            sx, sy, sz = sx / cnt, sy / cnt, sz / cnt
-            # no move into the body: the skin under v is its rest closest triangle on this body
-            t = rest.foot_tri[v]
-            i, j, k2 = rest.faces[t, 0], rest.faces[t, 1], rest.faces[t, 2]
-            e1x, e1y, e1z = body[j, 0] - body[i, 0], body[j, 1] - body[i, 1], body[j, 2] - body[i, 2]
-            e2x, e2y, e2z = body[k2, 0] - body[i, 0], body[k2, 1] - body[i, 1], body[k2, 2] - body[i, 2]
-            nx = e1y * e2z - e1z * e2y
-            ny = e1z * e2x - e1x * e2z
-            nz = e1x * e2y - e1y * e2x
-            nl = max(math.sqrt(nx * nx + ny * ny + nz * nz), 1e-300)
-            nx, ny, nz = nx / nl, ny / nl, nz / nl
-            px, py, pz = 0.0, 0.0, 0.0
-            for q in range(3):
-                bw = rest.foot_bary[v, q]
-                vq = rest.faces[t, q]
-                px += bw * body[vq, 0]
-                py += bw * body[vq, 1]
-                pz += bw * body[vq, 2]
-            clear = (points[v, 0] - px) * nx + (points[v, 1] - py) * ny + (points[v, 2] - pz) * nz
-            inward = -(sx * nx + sy * ny + sz * nz)
-            cut = max(inward - max(clear - margin, 0.0), 0.0)
-            sx += cut * nx
-            sy += cut * ny
-            sz += cut * nz
-            # and not behind this frame's own plane, where it has one
-            gx, gy, gz = planes[v, 3], planes[v, 4], planes[v, 5]
-            clear = (points[v, 0] - planes[v, 0]) * gx + (points[v, 1] - planes[v, 1]) * gy + \
-                (points[v, 2] - planes[v, 2]) * gz
-            inward = -(sx * gx + sy * gy + sz * gz)
-            cut = max(inward - max(clear, 0.0), 0.0)
-            points[v, 0] += sx + cut * gx
-            points[v, 1] += sy + cut * gy
-            points[v, 2] += sz + cut * gz
+            moved_seen[v] = it
+        # the weld groups back within their rest reach (as ShortEdgeWeld does);
+        # a member the clamp moves joins the next pass
+        for g in range(rest.group_ptr.shape[0] - 1):
+            j0, j1 = rest.group_ptr[g], rest.group_ptr[g + 1]
+            cx, cy, cz = 0.0, 0.0, 0.0
+            for j in range(j0, j1):
+                v = rest.group_rows[j]
+                cx += points[v, 0]
+                cy += points[v, 1]
+                cz += points[v, 2]
+            inv = 1.0 / (j1 - j0)
+            cx, cy, cz = cx * inv, cy * inv, cz * inv
+            for j in range(j0, j1):
+                v = rest.group_rows[j]
+                dx, dy, dz = points[v, 0] - cx, points[v, 1] - cy, points[v, 2] - cz
+                r = math.sqrt(dx * dx + dy * dy + dz * dz)
+                if not r > rest.group_reach[j] * (1.0 + REACH_SLACK):
+                    continue
+                f = rest.group_reach[j] / r
+                points[v, 0] = cx + dx * f
+                points[v, 1] = cy + dy * f
+                points[v, 2] = cz + dz * f
+                if moved_seen[v] != it:
+                    moved_seen[v] = it
+                    moved[n_moved] = v
+                    n_moved += 1
         # the next pass: the edges at the vertices this one moved
         n_active = 0
         for k in range(n_moved):

@@ -13,7 +13,7 @@ from .grid import RadiusGrid
 from .guard import GuardBody, GuardState, guard_estimate, guard_frame
 from .jit import HAVE_NUMBA
 from .normals import face_normal_sums, face_normals, vertex_normals
-from .strain import StrainRest, edge_incidence, strain_frame
+from .strain import StrainRest, edge_incidence, strain_frame, weld_groups
 
 
 def warm_up() -> bool:
@@ -84,6 +84,7 @@ def warm_up() -> bool:
     e = np.array([[0, 1]], dtype=np.int64)
     local = np.zeros((2, 2), dtype=np.int64)
     rest = StrainRest(e, np.ones(1), local, tet, np.ones((4, 3)), np.zeros(2, dtype=np.int64), np.full((2, 3), 1 / 3),
-                      np.zeros((2, 3)), unit[:2].copy(), np.zeros(2), *edge_incidence(e, 2))
+                      np.zeros((2, 3)), unit[:2].copy(), np.zeros(2), *edge_incidence(e, 2),
+                      *weld_groups(np.array([0, 1]), np.array([0, 0]), np.full(2, 0.5)))
     strain_frame(rest, pts, unit, np.array([[0.0, 0, 0], [3.0, 0, 0]]), np.ones(2), 1.1, 2, 0.001)
     return True
