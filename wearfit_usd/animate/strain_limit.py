@@ -52,10 +52,20 @@ The weld of sub-millimetre edges (:class:`short_edges.ShortEdgeWeld`) runs
 inside every pass too (``weld``): its groups clamped to their rest reach
 after each pass's moves, the members it moved joining the next pass. In a
 pass a weld group's short edge is one vote among its ends' edges: where
-panels meet at a seam (``female_casualsuit02``'s 0.7-0.9 mm welds beside
-2.5-3 mm seam edges, CMU walk frame 16) the passes opened the welds to
-2.2-2.9x and the weld after them closed them by stretching the seam edges
-again (1.3 -> 2.0x).
+panels meet at a seam (``female_casualsuit02`` on ``body_female_heavy``, CMU
+walk frame 16: 0.7-0.9 mm welds beside 2.5-3 mm seam edges) the frame's
+first 16 passes opened the welds to 2.2-2.9x and pulled the seam edges
+beside them from 1.3x to 2.0x, and every weld after a round undid the first
+half of that alone. Every-clip sweep, same tree otherwise (session 31):
+figures over issue 17's limits 56 -> 54; stretch max over the clips (mean)
+``female_casualsuit02`` 2.31 -> 2.01 (walk 2.45 -> 1.87, run 3.02 -> 2.51,
+punch 1.81 -> 1.49), ``ponytail01`` 2.24 -> 2.06 (jump 2.08 -> 1.74, arms
+held high 2.61 -> 2.00; its start-walk-stop 1.84 -> 2.11), the long skirt
+unchanged. Its cost: the CMU walk's strain-and-guard time 0.91-0.93 ->
+0.97-0.98 s (``ref_male`` on ``body_male_heavy``), 1.02-1.03 -> 1.05-1.07 s
+(``ref_female`` on ``body_female_thin``; two interleaved runs each). Pooling
+a group's moves instead (the group moving as one) gained less or lost (the
+run 3.02 -> 2.76; session 30: the ponytail's hair tie 1.22 -> 2.85).
 
 Arrays are numpy; metres.
 """

@@ -393,6 +393,11 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
         bind_rest = np.concatenate([m.points for m in bind_dressed.items])
         if bind_rest.shape != all_base.shape:
             bind_rest = None
+    # vertices joined by sub-millimetre edges in the items as authored move as one (short_edges)
+    weld = None
+    if opt.mode == "bind":
+        authored = ref_plan.ref_points if len(ref_plan.ref_points) == len(all_base) else all_base
+        weld = ShortEdgeWeld(authored, frame_plan.mesh.edges)
     # no edge stretched beyond the body's own stretch under it (strain_limit)
     strain = None
     if opt.mode == "bind" and opt.strain_limit:
@@ -404,10 +409,9 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
         if rigid is not None:
             movable[rigid.rows] = False
             movable[rigid.hinge_rows] = True
-        if bind_rest is None:
-            strain = StrainLimit(all_base, frame_plan.mesh.edges, body.faces, base_body, movable)
-        else:
-            strain = StrainLimit(bind_rest, frame_plan.mesh.edges, body.faces, target.body.points, movable)
+        # its rest: the first pose's dress, or the bind pose's; the weld inside its every pass
+        rest_body, rest_items = (base_body, all_base) if bind_rest is None else (target.body.points, bind_rest)
+        strain = StrainLimit(rest_items, frame_plan.mesh.edges, body.faces, rest_body, movable, weld=weld)
     # vertices outside the body in the bind pose's dress are guarded even
     # where the first pose's dress starts them inside it (the strain limit's
     # rest clearances are theirs)
@@ -466,11 +470,6 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
     floor_rows = ref_plan.skirt_mask() if cloth is not None and strain is not None else None
     if floor_rows is not None and not floor_rows.any():
         floor_rows = None
-    # vertices joined by sub-millimetre edges in the items as authored move as one (short_edges)
-    weld = None
-    if opt.mode == "bind":
-        authored = ref_plan.ref_points if len(ref_plan.ref_points) == len(all_base) else all_base
-        weld = ShortEdgeWeld(authored, frame_plan.mesh.edges)
     measures = None
     if opt.measure_every and opt.motion_measures:
         t0 = time.perf_counter()
