@@ -7,7 +7,7 @@ import pytest
 from wearfit_usd.animate.short_edges import ShortEdgeWeld
 from wearfit_usd.animate.strain_limit import StrainLimit
 from wearfit_usd.geometry.mesh import edges as mesh_edges
-from wearfit_usd.kernels import HAVE_NUMBA
+from wearfit_usd.kernels import HAVE_NUMBA, weld_groups
 
 
 def plane(n=21, size=0.4):
@@ -202,6 +202,8 @@ def test_the_weld_holds_inside_every_pass(compiled):
     assert (ratios(many, q, e) <= 1.1 + 1e-6).all()   # the flat skin's stretch 1 to rounding
     with pytest.raises(ValueError, match="reach vertex 2, the items have 2"):
         StrainLimit(q[:2], e[:1], faces, body, movable[:2], weld=weld)
+    with pytest.raises(ValueError, match="each with a member"):
+        weld_groups(np.array([1, 2]), np.array([0, 2]), np.ones(2))   # group 1 empty: a division by zero
 
 
 @pytest.mark.skipif(not HAVE_NUMBA, reason="numba not installed: the numpy path is the only one")

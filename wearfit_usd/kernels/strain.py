@@ -89,8 +89,8 @@ def weld_groups(rows: np.ndarray, group: np.ndarray, reach: np.ndarray) -> tuple
     if not (rows.shape == group.shape == reach.shape):
         raise ValueError(f"rows {rows.shape}, group {group.shape} and reach {reach.shape} do not match")
     n = int(group.max()) + 1 if len(group) else 0
-    if len(group) and group.min() < 0:
-        raise ValueError("negative weld group")
+    if len(group) and (group.min() < 0 or np.bincount(group).min() < 1):
+        raise ValueError("weld groups must be numbered 0..G-1, each with a member")
     order = np.lexsort((rows, group))
     ptr = np.zeros(n + 1, dtype=np.int64)
     np.cumsum(np.bincount(group, minlength=n), out=ptr[1:])
