@@ -114,9 +114,9 @@ WELD_ROUND_PASSES = 16
 #: With the weld inside every pass (session 31; same tree otherwise) 3 -> 4
 #: rounds: figures over 54 -> 52 (female_casualsuit02 8 -> 6; every suit's
 #: stretch max lower or equal but the long skirt's start-walk-stop 3.40 ->
-#: 3.55, cloth), 0.5-2.4 ms a frame (the CMU walk, 79 frames: 0.86-0.91 ->
+#: 3.55, cloth), 0.4-2.4 ms a frame (the CMU walk, 79 frames: 0.86-0.91 ->
 #: 0.94-0.95 s ref_male, 0.99-1.02 -> 1.10-1.18 s ref_female_longskirt);
-#: 6 rounds: 50 over, but 3.5-5.7 ms a frame and the long skirt's jump over
+#: 6 rounds: 50 over, but 2.8-5.7 ms a frame and the long skirt's jump over
 #: in new penetrations (0.98 -> 1.12 %); 0 or 1 round: 83 and 68 over.
 WELD_ROUNDS = 4
 MARGIN = 0.001     # m: no move takes a vertex closer to the skin under it than this
