@@ -496,3 +496,4 @@ def test_the_weld_holds_inside_the_strain_limit_s_passes(tmp_path, ref_female, m
     assert figs["inside, rounds"]["stretch_max"] <= figs["inside"]["stretch_max"] + 1e-9, figs
     assert figs["inside"]["stretch_max"] <= 1.25 < 1.5 < figs["after"]["stretch_max"], figs
     assert figs["inside"]["new_pen_pct"] <= figs["after"]["new_pen_pct"] + 0.1, figs
+    assert figs["inside, rounds"]["stretch_p99"] <= figs["after"]["stretch_p99"] + 1e-9, figs
