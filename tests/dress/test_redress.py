@@ -561,6 +561,45 @@ def test_dressing_the_reference_onto_its_own_shape_gives_it_back(ref_male, ref_f
     assert q.signed_distance(fixed.points[sl][inset]).min() > 0.0
 
 
+def test_placed_rows_are_kept_and_the_layers_over_them_follow(ref_male, usd_dir):
+    """``placed`` rows replace the plan's evaluation and no pass moves them;
+    the items over them are corrected against them. On the CMU-rig body
+    (ref_male's shape: nothing moves when dressed, see above) the shoes
+    placed 15 % larger about each foot's centre: they come back as placed,
+    and the trouser hems over their collars are lifted over them."""
+    from wearfit_usd.dress.apply import Placed
+    from wearfit_usd.io.usd import read_character
+    tgt = read_character(usd_dir / "body_male_cmu_rig.usdc")
+    names = [m.name for m in ref_male.items]
+    pl = plan(ref_male)
+    shoes = pl.item_slices()[names.index("shoes01")]
+    rows = np.arange(shoes.start, shoes.stop)
+    pts = pl.ref_points[rows].copy()
+    for side in (pts[:, 0] > 0, pts[:, 0] <= 0):
+        centre = pts[side].mean(axis=0)
+        pts[side] = centre + 1.15 * (pts[side] - centre)
+    res = dress(ref_male, tgt, prepared=pl, placed=Placed(rows, pts))
+    np.testing.assert_array_equal(res.points[rows], pts)
+    assert not res.moved[rows].any()
+    suit = names.index("male_casualsuit01")
+    (gap, under) = [lay[2:] for lay in pl.layers if lay[0] == suit and lay[1] == names.index("shoes01")][0]
+    over = np.flatnonzero(under >= 0)
+    outer = pl.item_slices()[suit].start + over
+    clear = SurfaceQuery(tgt.body.faces, tgt.body.points).signed_distance(res.points)
+    # each hem vertex over a collar clears the placed shoe by its gap
+    # (the layer pass's condition), 391 of the 1,324 short of it before the passes
+    assert np.all(clear[outer] - clear[under[over]] >= gap[over] - 1e-4)
+    before = SurfaceQuery(tgt.body.faces, tgt.body.points).signed_distance(pl.ref_points)
+    before[rows] = SurfaceQuery(tgt.body.faces, tgt.body.points).signed_distance(pts)
+    assert np.sum(before[outer] - before[under[over]] < gap[over] - 1e-4) >= 20
+    assert res.moved[outer].sum() >= 20
+    assert not dress(ref_male, tgt, prepared=pl).moved.any()
+    with pytest.raises(ValueError, match="placed"):
+        dress(ref_male, tgt, prepared=pl, placed=Placed(rows + len(pl.ref_points), pts))
+    with pytest.raises(ValueError, match="placed"):
+        dress(ref_male, tgt, prepared=pl, placed=Placed(rows, pts[:, :2]))
+
+
 def test_rigid_parts_that_do_not_fit_the_body_move_freely(ref_male, usd_dir):
     """On the muscular-heavy body the head's sides and nape grew more than
     its top: the short hair, placed by its scalp's similarity, has 8.9 % of

@@ -31,8 +31,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..dress import regions as R
+from ..dress.apply import Placed, dress
 from ..dress.apply import apply as apply_plan
-from ..dress.apply import dress
 from ..dress.hidden_body import SHOT_DEPTH, SHOT_MAX_GAP, hide_or_drop
 from ..dress.item_weights import PIECE_WEIGHT, SKINNED_SUFFIX, rigid_pieces, skinned_items
 from ..dress.plan import DressPlan
@@ -267,6 +267,8 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
     # a skirt, would hand skirt parts to the arms); the posed dressing rebinds it
     if ref_plan is None:
         ref_plan = plan_dress(reference, k=opt.k)
+    whole = _skinned_whole(ref_plan, opt, coarse)
+    bind_dressed = skin_src = rigid = None
     if opt.mode == "lbs" or opt.dress_pose == "bind":
         # dressed on the target's bind pose; frame 0 comes from the binding
         dressed = dress_items(reference, target, k=opt.k, untangle=opt.untangle, prepared=ref_plan,
@@ -288,15 +290,28 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
                             skeleton=_posed_skeleton(reference.skeleton, ref_world0), items=posed_plan.items)
         base_skeleton = _posed_skeleton(target.skeleton, world(0))
         posed_target = replace(target, body=target.body.copy_with_points(body0), skeleton=base_skeleton)
+        placed = None
+        if whole:
+            # the skinned rigid items where the shot's frame 0 puts them: the
+            # items over them are dressed against those. Placed by the plan's
+            # similarity fit of the posed skin, a shoe's collar stood 38 mm off
+            # the shin in the CMU run's first pose (2.2 mm skinned) and the
+            # trouser hem over it was lifted round the leg (male_casualsuit01,
+            # its ring 1.6x its length from frame 0 on)
+            bind_dressed = _bind_dress(reference, target, None, opt, ref_plan)
+            skin_src = skinned_items(bind_dressed, target)
+            rigid = _RigidItems(skin_src, whole, [m.name for m in ref_plan.items], ref_plan.offsets,
+                                target.skeleton.n_joints, hinged=ref_plan.wholly_rigid())
+            placed = Placed(rigid.rows, rigid.skinner(skin_mats(0)))
         dressed = dress_items(posed_ref, posed_target, k=opt.k, untangle=opt.untangle, prepared=posed_plan,
-                              pose_align=opt.pose_align)
+                              pose_align=opt.pose_align, placed=placed)
         base_body = body0
     items_base, dress_timings = dressed.items, dressed.timings
-    bind_dressed = None
     if opt.mode == "bind" and opt.strain_limit and opt.dress_pose != "bind" and FIRST_DRESS_PASSES:
         # the first pose's dress strain-limited against the bind pose's
         # before anything is bound to it (see FIRST_DRESS_PASSES)
-        bind_dressed = _bind_dress(reference, target, dressed, opt, ref_plan)
+        if bind_dressed is None:
+            bind_dressed = _bind_dress(reference, target, dressed, opt, ref_plan)
         items_base = relax_first_dress(items_base, bind_dressed.items, dressed.plan.rigid_mask(),
                                        dressed.plan.mesh.edges, body.faces, body.points, base_body)
     rep.timings["dress"] = time.perf_counter() - t0
@@ -353,26 +368,17 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
     # shot's own weights, else dressed on the bind pose with the weights of
     # their binding (dress.item_weights.skinned_items, as `wearfit dress
     # --items` writes them); for the skinned rigid items and the skinned copies
-    whole = set()
-    if opt.mode == "bind" and opt.rigid_items == "skinned":
-        # rigid items and decals on the skin (eyebrows), skinned: the guard
-        # lifted the eyebrows to its 1 mm margin in every frame (from 0-1 mm).
-        # Not the decals on a coarse body: skinned with the blended weights
-        # of a 20 cm triangle whose corners follow two joints, a point leaves
-        # the triangle (RiggedFigure's box head, CMU walk: eyebrows 22 mm
-        # inside it at frame 0, 92 % of them inside in the worst frame, 0 %
-        # bound to the triangles)
-        whole = ref_plan.wholly_rigid() | (set() if coarse else ref_plan.skin_decals())
-    skin_src = items_for_skin
-    if opt.mode == "bind" and (whole or items_mode != "points"):
-        if bind_dressed is None:
-            bind_dressed = _bind_dress(reference, target, dressed, opt, ref_plan)
-        skin_src = skinned_items(bind_dressed, target)
+    if skin_src is None:
+        skin_src = items_for_skin
+        if opt.mode == "bind" and (whole or items_mode != "points"):
+            if bind_dressed is None:
+                bind_dressed = _bind_dress(reference, target, dressed, opt, ref_plan)
+            skin_src = skinned_items(bind_dressed, target)
     # rigid items (shoes, hats, glasses) skinned to the skeleton (see _RigidItems)
-    rigid = None
-    if whole:
+    if whole and rigid is None:
         rigid = _RigidItems(skin_src, whole, [m.name for m in items], offsets, target.skeleton.n_joints,
                             hinged=ref_plan.wholly_rigid())
+    if rigid is not None:
         rep.skinned_rigid_items = rigid.names
     rep.timings["bind"] = time.perf_counter() - t0
     # clearances to keep (and "new penetration" = inside now, outside when dressed)
@@ -744,6 +750,20 @@ def _report_narrow_hems(rep: AnimateReport, hems: dict, outlines: dict, rt) -> N
              f"the legs' outline up to {o[worst]:.2f} m at frame {worst}, clip frame "
              f"{float(rt.source_frames[worst]):g}; the cloth stretches {SLACK:g}x at most): a skirt this narrow "
              f"rides up there and the legs below it show (coverage loss)")
+
+
+def _skinned_whole(ref_plan: DressPlan, opt: AnimateOptions, coarse: bool) -> set:
+    """The items a shot skins whole (:class:`_RigidItems`): in bind mode with
+    ``rigid_items="skinned"``, the rigid items and the decals on the skin
+    (eyebrows; the guard lifted them to its 1 mm margin in every frame, from
+    0-1 mm). Not the decals on a coarse body: skinned with the blended
+    weights of a 20 cm triangle whose corners follow two joints, a point
+    leaves the triangle (RiggedFigure's box head, CMU walk: eyebrows 22 mm
+    inside it at frame 0, 92 % of them inside in the worst frame, 0 % bound
+    to the triangles)."""
+    if opt.mode != "bind" or opt.rigid_items != "skinned":
+        return set()
+    return ref_plan.wholly_rigid() | (set() if coarse else ref_plan.skin_decals())
 
 
 def _bind_dress(reference: Character, target: Character, dressed, opt: AnimateOptions, ref_plan):

@@ -113,6 +113,16 @@ class Corrected(NamedTuple):
     moved: np.ndarray       # (M,) bool: vertices the pass moved
 
 
+class Placed(NamedTuple):
+    """Item rows the caller places itself: they replace the plan's evaluation
+    and no correction pass moves them; the other items are corrected against
+    them (an outer layer over them). A shot's first pose is dressed with its
+    skinned rigid items where the shot's frame 0 puts them (see
+    :func:`animate.try_on.animate`)."""
+    rows: np.ndarray        # (R,) int: stacked item rows
+    points: np.ndarray      # (R, 3) their points
+
+
 class Applied(NamedTuple):
     """The result of :func:`apply`."""
     points: np.ndarray      # (M, 3) the dressed item points
@@ -482,7 +492,8 @@ def recheck_spread(plan_: DressPlan, query: SurfaceQuery, before: np.ndarray, sp
 
 
 def correct_penetrations(plan_: DressPlan, body_points: np.ndarray, body_faces: np.ndarray, query: SurfaceQuery,
-                         points: np.ndarray, target: np.ndarray, options: PassOptions):
+                         points: np.ndarray, target: np.ndarray, options: PassOptions,
+                         fixed: np.ndarray | None = None):
     """The penetration and layer passes on evaluated item points.
 
     Vertices found inside the body are pushed out to their target clearance,
@@ -502,6 +513,8 @@ def correct_penetrations(plan_: DressPlan, body_points: np.ndarray, body_faces: 
     target : (M,) float array
         :func:`clearance_targets`.
     options : PassOptions
+    fixed : (M,) bool array, optional
+        Vertices neither pushed out nor lifted over a layer (:class:`Placed`).
 
     Returns
     -------
@@ -511,6 +524,8 @@ def correct_penetrations(plan_: DressPlan, body_points: np.ndarray, body_faces: 
         Of the corrected points; None when the plan has no layers.
     """
     cand = penetration_candidates(plan_, body_points, body_faces, points, options.margin, options.near_other)
+    if fixed is not None:
+        cand = cand._replace(mask=cand.mask & ~fixed)
     debug(f"penetration pass: {int(cand.mask.sum())} of {len(cand.mask)} vertices tested")
     # with ``spread`` the per-vertex corrections are made alone and then
     # spread over the item mesh, which replaces push_out's light smoothing
@@ -520,7 +535,8 @@ def correct_penetrations(plan_: DressPlan, body_points: np.ndarray, body_faces: 
     if plan_.layers:
         # layers keep their order: an outer item stays over the item under it
         footprints = Footprints(query, pts)
-        pts, lifted = keep_layers(query, pts, plan_.offsets, plan_.layers, footprints=footprints.closest)
+        pts, lifted = keep_layers(query, pts, plan_.offsets, plan_.layers, footprints=footprints.closest,
+                                  mask=None if fixed is None else ~fixed)
         moved |= lifted
     if options.spread:
         spread = spread_pass(plan_, points, pts, moved)
@@ -536,7 +552,7 @@ def correct_penetrations(plan_: DressPlan, body_points: np.ndarray, body_faces: 
 
 def apply(plan_: DressPlan, body_points: np.ndarray, body_faces: np.ndarray, penetration: bool = True,
           query: SurfaceQuery | None = None, options: PassOptions | None = None,
-          skirt_heights_kept: bool = False) -> Applied:
+          skirt_heights_kept: bool = False, placed: Placed | None = None) -> Applied:
     """Evaluate a plan on fitted body points and, with ``penetration``, correct
     the result.
 
@@ -578,6 +594,9 @@ def apply(plan_: DressPlan, body_points: np.ndarray, body_faces: np.ndarray, pen
         Default ``PassOptions()``.
     skirt_heights_kept : bool
         See :func:`evaluate`.
+    placed : Placed, optional
+        Rows placed by the caller: they replace the evaluation and no pass
+        moves them.
 
     Returns
     -------
@@ -586,16 +605,26 @@ def apply(plan_: DressPlan, body_points: np.ndarray, body_faces: np.ndarray, pen
         timings dict.
     """
     options = options or PassOptions()
+    n_items = plan_.binding.n_items
+    if placed is not None and (np.shape(placed.points) != (len(placed.rows), 3) or
+                               (len(placed.rows) and not 0 <= np.min(placed.rows) <= np.max(placed.rows) < n_items)):
+        raise ValueError(f"placed: {len(placed.rows)} rows of {n_items} item points with points "
+                         f"{np.shape(placed.points)}: expected rows in range and points (rows, 3)")
     t0 = time.perf_counter()
     ev = evaluate(plan_, body_points, skirt_heights_kept)
     t1 = time.perf_counter()
     pts, moved = ev.points, np.zeros(len(ev.points), dtype=bool)
+    fixed = None
+    if placed is not None:
+        pts[placed.rows] = placed.points
+        fixed = np.zeros(len(pts), dtype=bool)
+        fixed[placed.rows] = True
     if penetration:
         if query is None:
             query = SurfaceQuery(body_faces, body_points)
         target = clearance_targets(plan_, options.push_inherited, options.inherited_clearance)
         (pts, moved), footprints = correct_penetrations(plan_, body_points, body_faces, query, ev.points,
-                                                        target, options)
+                                                        target, options, fixed)
     t2 = time.perf_counter()
     timings = {"evaluate_s": t1 - t0, "penetration_s": t2 - t1}
     if penetration and options.untangle:
@@ -604,6 +633,9 @@ def apply(plan_: DressPlan, body_points: np.ndarray, body_faces: np.ndarray, pen
         moved |= touched
         timings["untangle_s"] = time.perf_counter() - t2
         debug(f"untangle: {stats}")
+    if placed is not None:  # the spread and the untangle leave no trace on them either
+        pts[placed.rows] = placed.points
+        moved[placed.rows] = False
     return Applied(pts, ev.free, moved, timings)
 
 
@@ -649,14 +681,15 @@ def push_out_target(plan_: DressPlan, body: Mesh, points: np.ndarray, push_inher
 def dress(ref: Character, target: Character, k: int = 5, use_regions: bool = True,
           rigid="auto", penetration: bool = True, body_points: np.ndarray | None = None,
           strict_far: bool = False, push_inherited: bool = False, untangle: bool = True,
-          prepared: DressPlan | None = None) -> DressResult:
+          prepared: DressPlan | None = None, placed: Placed | None = None) -> DressResult:
     """Put every item of ``ref`` on ``target``'s body (internal space).
     ``k``, ``use_regions``, ``rigid``, ``strict_far``: see :func:`plan.plan`;
     ``push_inherited``, ``untangle``: see :class:`PassOptions`. ``prepared``: a plan
     of ``ref`` made earlier (e.g. :meth:`DressPlan.rebound`, or :func:`plan.plan`
     with its other options), used instead of a new one (the plan options are
     then ignored). ``body_points``: the reference body fitted onto the target
-    (N_ref, 3) if already known (default :func:`fitted_body_points`)."""
+    (N_ref, 3) if already known (default :func:`fitted_body_points`).
+    ``placed``: item rows placed by the caller (:class:`Placed`)."""
     tb = time.perf_counter()
     if body_points is None:
         body_points = fitted_body_points(ref, target)
@@ -674,10 +707,13 @@ def dress(ref: Character, target: Character, k: int = 5, use_regions: bool = Tru
     # a skirt keeps its height over the floor in proportion to its top's
     pts, free, moved, tm = apply(p, body_points, ref.body.faces, penetration=penetration, query=query,
                                  options=PassOptions(push_inherited=push_inherited, untangle=untangle),
-                                 skirt_heights_kept=True)
+                                 skirt_heights_kept=True, placed=placed)
     if penetration and not np.array_equal(target.body.faces, ref.body.faces):
         pts, on_target = push_out_target(p, target.body, pts, push_inherited)
         moved |= on_target
+        if placed is not None:
+            pts[placed.rows] = placed.points
+            moved[placed.rows] = False
     timings = {"body_fit_s": t_fit, **p.timings, **tm}
     keep_weights = (target.skeleton is not None and ref.skeleton is not None
                     and target.skeleton.joint_names == ref.skeleton.joint_names)
