@@ -39,8 +39,22 @@ def _item_points(stage, name, frame):
     return np.array(UsdGeom.Mesh(stage.GetPrimAtPath(f"/Root/Items/{name}")).GetPointsAttr().Get(frame))
 
 
-def test_shot_frames_validity_and_body_matches_usdskel(walk_shot, ref_male):
+def _skel_query(stage):
+    """UsdSkel's query of a written shot's skeleton."""
     from pxr import Usd, UsdSkel
+    cache = UsdSkel.Cache()
+    cache.Populate(UsdSkel.Root(stage.GetPrimAtPath("/Root/Character")), Usd.PrimDefaultPredicate)
+    return cache.GetSkelQuery(UsdSkel.Skeleton(stage.GetPrimAtPath("/Root/Character/Skeleton")))
+
+
+def _shot_body(shot, sq, frame):
+    """The shot's body (internal space) skinned by our LBS with UsdSkel's joint transforms at ``frame``."""
+    local = np.array(sq.ComputeJointLocalTransforms(frame))
+    return skin_mesh(shot.body, shot.skeleton, shot.skeleton.world_from_local(local))
+
+
+def test_shot_frames_validity_and_body_matches_usdskel(walk_shot, ref_male):
+    from pxr import Usd
     out, rep = walk_shot
     # 160 clip frames at 120 fps = 1.325 s -> 40 frames at 30 fps
     assert rep.frames == 40 and rep.fps == 30
@@ -50,12 +64,9 @@ def test_shot_frames_validity_and_body_matches_usdskel(walk_shot, ref_male):
     assert validate_stage(stage) == []
     shot = read_character(out)
     assert sorted(m.name for m in shot.items) == sorted(m.name for m in ref_male.items)
-    cache = UsdSkel.Cache()
-    cache.Populate(UsdSkel.Root(stage.GetPrimAtPath("/Root/Character")), Usd.PrimDefaultPredicate)
-    sq = cache.GetSkelQuery(UsdSkel.Skeleton(stage.GetPrimAtPath("/Root/Character/Skeleton")))
+    sq = _skel_query(stage)
     for f in (0, 17, rep.frames - 1):
-        local = np.array(sq.ComputeJointLocalTransforms(f))
-        ours = skin_mesh(shot.body, shot.skeleton, shot.skeleton.world_from_local(local))
+        ours = _shot_body(shot, sq, f)
         ref = transform_points(usdskel_skinned_points(stage, "/Root/Character/Body", f), shot.to_internal)
         assert np.abs(ours - ref).max() / np.abs(ref).max() < 1e-5
 
@@ -230,7 +241,7 @@ def test_pointed_foot_keeps_the_shoes_on(tmp_path, ref_female):
     """Dance clip, frame 0 (pointe tendue): dressing in that pose keeps every
     shoe vertex on the foot (the push-out once used an extrapolated plane
     offset as clearance and threw shoe vertices 0.3 m away)."""
-    from pxr import Usd, UsdSkel
+    from pxr import Usd
 
     from wearfit_usd.geometry.closest import SurfaceQuery
     target = read_character(USD_DIR / "body_female_heavy.usdc")
@@ -239,11 +250,7 @@ def test_pointed_foot_keeps_the_shoes_on(tmp_path, ref_female):
     animate(ref_female, target, clip, out, AnimateOptions(start=1, end=9, fps=30))
     stage = Usd.Stage.Open(str(out))
     shot = read_character(out)
-    cache = UsdSkel.Cache()
-    cache.Populate(UsdSkel.Root(stage.GetPrimAtPath("/Root/Character")), Usd.PrimDefaultPredicate)
-    sq = cache.GetSkelQuery(UsdSkel.Skeleton(stage.GetPrimAtPath("/Root/Character/Skeleton")))
-    local = np.array(sq.ComputeJointLocalTransforms(0))
-    body0 = skin_mesh(shot.body, shot.skeleton, shot.skeleton.world_from_local(local))
+    body0 = _shot_body(shot, _skel_query(stage), 0)
     shoes = transform_points(_item_points(stage, "shoes02", 0), shot.to_internal)
     d = SurfaceQuery(shot.body.faces, body0).signed_distance(shoes)
     assert d.max() < 0.08, d.max()
@@ -439,7 +446,7 @@ def test_a_trouser_hem_is_dressed_over_the_shoes_the_shot_skins(tmp_path, ref_ma
     any hem vertex over the shoes differs now is 10 mm); every frame carried the
     ring 1.6x its length. Dressed against the shoes where the shot's frame 0
     skins them, the hem over them keeps the bind pose dress's clearance."""
-    from pxr import Usd, UsdSkel
+    from pxr import Usd
 
     from wearfit_usd.dress.apply import dress
     from wearfit_usd.dress.plan import plan
@@ -457,11 +464,7 @@ def test_a_trouser_hem_is_dressed_over_the_shoes_the_shot_skins(tmp_path, ref_ma
         dress(ref_male, heavy_male).items[suit].points[hem])
     stage = Usd.Stage.Open(str(out))
     shot = read_character(out)
-    cache = UsdSkel.Cache()
-    cache.Populate(UsdSkel.Root(stage.GetPrimAtPath("/Root/Character")), Usd.PrimDefaultPredicate)
-    sq = cache.GetSkelQuery(UsdSkel.Skeleton(stage.GetPrimAtPath("/Root/Character/Skeleton")))
-    body0 = skin_mesh(shot.body, shot.skeleton, shot.skeleton.world_from_local(
-        np.array(sq.ComputeJointLocalTransforms(0))))
+    body0 = _shot_body(shot, _skel_query(stage), 0)
     hem0 = transform_points(_item_points(stage, "male_casualsuit01", 0), shot.to_internal)[hem]
     change = np.abs(SurfaceQuery(shot.body.faces, body0).signed_distance(hem0) - at_rest)
     assert change.max() <= 0.015, (change.max(), np.sort(change)[-8:])  # 10.3 mm; 32.1 mm before

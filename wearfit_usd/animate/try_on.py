@@ -300,8 +300,7 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
             # its ring 1.6x its length from frame 0 on)
             bind_dressed = _bind_dress(reference, target, None, opt, ref_plan)
             skin_src = skinned_items(bind_dressed, target)
-            rigid = _RigidItems(skin_src, whole, [m.name for m in ref_plan.items], ref_plan.offsets,
-                                target.skeleton.n_joints, hinged=ref_plan.wholly_rigid())
+            rigid = _RigidItems.of_plan(skin_src, whole, ref_plan, target.skeleton.n_joints)
             placed = Placed(rigid.rows, rigid.skinner(skin_mats(0)))
         dressed = dress_items(posed_ref, posed_target, k=opt.k, untangle=opt.untangle, prepared=posed_plan,
                               pose_align=opt.pose_align, placed=placed)
@@ -376,8 +375,7 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
             skin_src = skinned_items(bind_dressed, target)
     # rigid items (shoes, hats, glasses) skinned to the skeleton (see _RigidItems)
     if whole and rigid is None:
-        rigid = _RigidItems(skin_src, whole, [m.name for m in items], offsets, target.skeleton.n_joints,
-                            hinged=ref_plan.wholly_rigid())
+        rigid = _RigidItems.of_plan(skin_src, whole, ref_plan, target.skeleton.n_joints)
     if rigid is not None:
         rep.skinned_rigid_items = rigid.names
     rep.timings["bind"] = time.perf_counter() - t0
@@ -832,6 +830,13 @@ class _RigidItems:
         self.rows = np.concatenate(rows).astype(np.int64)
         self.hinge_rows = self.rows[np.concatenate(hinge)]
         self.skinner = Skinner(np.concatenate(pts), np.concatenate(ji), np.concatenate(jw), n_joints)
+
+    @classmethod
+    def of_plan(cls, skinned: list, names: set, plan: DressPlan, n_joints: int) -> _RigidItems:
+        """For a shot of ``plan``'s items (its order and rows), the articulated
+        ones its wholly rigid items."""
+        return cls(skinned, names, [m.name for m in plan.items], plan.offsets, n_joints,
+                   hinged=plan.wholly_rigid())
 
 
 class _SkinnedCopies:
