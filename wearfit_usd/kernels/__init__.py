@@ -36,7 +36,16 @@ from .normals import (
                       vertex_normals,
                       vertex_pseudo_normals_numpy,
 )
-from .strain import StrainCaps, StrainRest, clear_caps, edge_incidence, new_caps, strain_frame, weld_groups
+from .strain import (
+    StrainCaps,
+    StrainRest,
+    clear_caps,
+    edge_incidence,
+    new_caps,
+    strain_frame,
+    wavefront_levels,
+    weld_groups,
+)
 from .warm import warm_up
 
 __all__ = ["HAVE_NUMBA", "GridArrays", "GuardBody", "GuardState", "RadiusGrid", "add_rows", "assign_rows",
@@ -44,4 +53,4 @@ __all__ = ["HAVE_NUMBA", "GridArrays", "GuardBody", "GuardState", "RadiusGrid", 
            "corner_normals_numpy", "diffusion_rhs", "face_normal_sums", "face_normals",
            "guard_estimate", "guard_frame", "similarity_place", "similarity_transforms", "vertex_incidence",
            "vertex_normals", "vertex_pseudo_normals_numpy", "warm_up", "StrainRest", "strain_frame", "edge_incidence",
-           "StrainCaps", "new_caps", "clear_caps", "weld_groups"]
+           "StrainCaps", "new_caps", "clear_caps", "weld_groups", "wavefront_levels"]

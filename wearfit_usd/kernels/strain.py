@@ -1,24 +1,26 @@
 """The strain limit's per-frame pass (:mod:`animate.strain_limit`), compiled.
 
-Per Jacobi pass, a loop over the edges that can be over (all in the first
-pass, then those at a vertex the last pass moved): an edge longer than
-``limit`` x its rest length gets its allowed length (computed once per
-frame, from the principal stretches of the body triangles under its ends
-and the offset factor of its clearance, as
+Per pass, a loop over the edges that can be over (all in the first pass,
+then those at a vertex the last pass moved), in ascending edge order on
+even passes and descending on odd ones. An edge longer than ``limit`` x
+its rest length gets its allowed length (computed once per frame, from
+the principal stretches of the body triangles under its ends and the
+offset factor of its clearance, as
 :func:`dress.body_stretch.principal_stretches` and
 :func:`dress.body_stretch.offset_factor` compute them), and one over its
-allowed length moves its ends toward each other; then every vertex at such
-an edge takes the mean of its moves (gathered over its own edges in
-ascending order, as the full loop summed them), cut where it would go into
-the body; then every weld group (item vertices joined by sub-millimetre
-edges, :class:`animate.short_edges.ShortEdgeWeld`) is clamped to its rest
-reach about its centre, so a pass cannot open a weld that the weld after
-the limit would close by stretching the group's other edges. An edge a
-pass brought exactly to its bound (one end fixed) is over it or not by its
-last bit, which the two paths may round differently; they agree where no
-such tie decides. The numpy twin is
+allowed length (by more than ``OVER_SLACK``) moves its ends toward each
+other at once (Gauss-Seidel: the next edge sees them moved), cut where a
+move would go into the body; an edge with an end on this frame's plane (a
+cloth floor) instead stores its correction, and after the loop each vertex
+at such an edge takes the mean of its corrections (gathered over its own
+edges in ascending order; Jacobi), cut likewise; then every weld group
+(item vertices joined by sub-millimetre edges,
+:class:`animate.short_edges.ShortEdgeWeld`) is clamped to its rest reach
+about its centre, so a pass cannot open a weld that the weld after the
+limit would close by stretching the group's other edges. The numpy twin is
 :meth:`animate.strain_limit.StrainLimit` itself (its ``compiled=False``
-path); a test runs both.
+path): the same order as waves of edges that share no vertex
+(:func:`wavefront_levels`), each wave at once; a test runs both.
 """
 from __future__ import annotations
 
@@ -34,6 +36,11 @@ from .jit import jit
 #: at its reach (to rounding) is not moved again, and the compiled pass and
 #: its numpy twin, which round the centre differently, agree on which moved
 REACH_SLACK = 1e-9
+#: an edge is over its allowed length only when longer than it times (1 + this):
+#: one a pass brought to its bound (to rounding) is not moved again, so a pass
+#: with nothing left to do ends the frame's passes (and the two paths, which
+#: round differently, agree on which edges are over)
+OVER_SLACK = 1e-9
 
 
 class StrainRest(NamedTuple):
@@ -95,6 +102,39 @@ def weld_groups(rows: np.ndarray, group: np.ndarray, reach: np.ndarray) -> tuple
     ptr = np.zeros(n + 1, dtype=np.int64)
     np.cumsum(np.bincount(group, minlength=n), out=ptr[1:])
     return ptr, rows[order], reach[order]
+
+
+def wavefront_levels(edges: np.ndarray, n_points: int) -> tuple[np.ndarray, np.ndarray]:
+    """The Gauss-Seidel passes' order as waves: (forward (E,), backward
+    (E,)) int64, each edge's wave when the edges (E, 2) are taken one by
+    one in ascending (descending) index order: one more than the last wave
+    to touch either of its ends. Edges of one wave share no vertex, and an
+    edge comes after every earlier edge at its ends: taking the waves in
+    turn, each at once, gives what the one-by-one loop gives, for the
+    edges of any subset too (the numpy twin's schedule)."""
+    e = np.ascontiguousarray(edges, dtype=np.int64).reshape(-1, 2)
+    fwd = np.empty(len(e), dtype=np.int64)
+    bwd = np.empty(len(e), dtype=np.int64)
+    _levels(e, n_points, fwd, bwd)
+    return fwd, bwd
+
+
+@jit
+def _levels(edges, n_points, fwd, bwd):
+    last = np.zeros(n_points, dtype=np.int64)
+    for k in range(edges.shape[0]):
+        a, b = edges[k, 0], edges[k, 1]
+        lv = max(last[a], last[b]) + 1
+        fwd[k] = lv
+        last[a] = lv
+        last[b] = lv
+    last[:] = 0
+    for k in range(edges.shape[0] - 1, -1, -1):
+        a, b = edges[k, 0], edges[k, 1]
+        lv = max(last[a], last[b]) + 1
+        bwd[k] = lv
+        last[a] = lv
+        last[b] = lv
 
 
 @jit(inline=True)
@@ -276,52 +316,99 @@ def _move(rest, body, points, planes, margin, v, sx, sy, sz):
     points[v, 2] += sz + cut * gz
 
 
+@jit(inline=True)
+def _has_floor(planes, v):
+    """Whether vertex v has a plane this frame (a nonzero normal)."""
+    return planes[v, 3] != 0.0 or planes[v, 4] != 0.0 or planes[v, 5] != 0.0
+
+
 @jit
 def _strain_frame(rest, body, normals, points, w, limit, iterations, margin, caps, planes):
-    """:func:`strain_frame`'s passes. Each pass: the edges to look at (all
-    first, then those at a vertex the last pass moved: the others keep
-    their length) each store their correction; then each vertex at an
-    edge over its cap gathers its corrections over its own edges in
-    ascending edge order (the Jacobi mean, summed as one loop over all
-    edges would) and moves; then the weld groups are clamped to their rest
-    reach, a member the clamp moved joining the next pass. Work per pass is
-    that of the active edges and vertices (and the weld groups), not of the
-    whole item."""
+    """:func:`strain_frame`'s passes. Each pass looks at the edges that can
+    be over, in ascending edge order on even passes and descending on odd
+    ones: all in the first pass, then those at a vertex the last pass moved
+    and those at a vertex this pass moved before their turn (the others
+    keep their length: as if it looked at all). An edge over its cap with
+    no end on a plane moves its ends at once (Gauss-Seidel); one with an
+    end on a plane stores its correction, and after the loop each vertex at
+    such an edge gathers its corrections over its own edges in ascending
+    edge order (the Jacobi mean) and moves; then the weld groups are
+    clamped to their rest reach, a member the clamp moved joining the next
+    pass. A pass scans the range of edge indices marked for it."""
     n_e = rest.edges.shape[0]
     m = points.shape[0]
     cap, exact, tri_hi, vhi, feet, have_foot = caps
     limited = np.zeros(n_e, dtype=np.bool_)
     n_limited = 0
-    over_pass = np.full(n_e, -1, dtype=np.int64)     # the pass in which an edge was over its cap
+    over_pass = np.full(n_e, -1, dtype=np.int64)     # the pass in which a plane edge was over its cap
     corr = np.empty((n_e, 4))                         # its correction then: f, dx, dy, dz
     share = np.empty(n_e)                             # and end a's share
-    active = np.empty(n_e, dtype=np.int64)            # the edges the next pass looks at
-    n_active = n_e
-    edge_seen = np.full(n_e, -1, dtype=np.int64)
-    ends = np.empty(m, dtype=np.int64)                # the vertices at an edge over its cap
+    mark = np.zeros(n_e, dtype=np.int64)              # the pass that looks at an edge (all: the first)
+    lo, hi = 0, n_e - 1                               # the marked edges' range
+    jacobi = np.empty(n_e, dtype=np.int64)            # the pass's active edges with an end on a plane
+    ends = np.empty(m, dtype=np.int64)                # the vertices at a plane edge over its cap
     vert_seen = np.full(m, -1, dtype=np.int64)
     moved = np.empty(m, dtype=np.int64)
     moved_seen = np.full(m, -1, dtype=np.int64)
+    on_plane = np.zeros(m, dtype=np.bool_)
+    for v in range(m):
+        on_plane[v] = _has_floor(planes, v)
     for it in range(iterations):
+        n_moved = 0
+        n_jacobi = 0
+        forward = it % 2 == 0
+        k = lo if forward else hi
+        while lo <= k <= hi:
+            ei = k
+            k = k + 1 if forward else k - 1
+            if mark[ei] != it:
+                continue
+            a, b = rest.edges[ei, 0], rest.edges[ei, 1]
+            if on_plane[a] or on_plane[b]:
+                jacobi[n_jacobi] = ei
+                n_jacobi += 1
+                continue
+            dx = points[b, 0] - points[a, 0]
+            dy = points[b, 1] - points[a, 1]
+            dz = points[b, 2] - points[a, 2]
+            ln = math.sqrt(dx * dx + dy * dy + dz * dz)
+            if not ln > limit * rest.len0[ei] or not _over(rest, body, normals, limit, caps, ei, ln):
+                continue
+            if not limited[ei]:
+                limited[ei] = True
+                n_limited += 1
+            wa, wb = w[a], w[b]
+            sa = wa / max(wa + wb, 1e-300)
+            f = (ln - cap[ei]) / max(ln, 1e-300)
+            for end in range(2):
+                v = a if end == 0 else b
+                wv = wa if end == 0 else wb
+                if not wv > 0.0:
+                    continue
+                g = f * sa if end == 0 else -f * (1.0 - sa)
+                _move(rest, body, points, planes, margin, v, g * dx, g * dy, g * dz)
+                if moved_seen[v] != it:
+                    moved_seen[v] = it
+                    moved[n_moved] = v
+                    n_moved += 1
+                # the edges at v still to come in this pass's order are looked at too
+                for j in range(rest.inc_ptr[v], rest.inc_ptr[v + 1]):
+                    ej = rest.inc_edge[j]
+                    if mark[ej] != it and (ej > ei if forward else ej < ei):
+                        mark[ej] = it
+                        hi = max(hi, ej)
+                        lo = min(lo, ej)
+        # the edges with an end on a plane: Jacobi, on the points the sweep left
         n_ends = 0
-        for k in range(n_active):
-            ei = k if it == 0 else active[k]
+        for k in range(n_jacobi):
+            ei = jacobi[k]
             a, b = rest.edges[ei, 0], rest.edges[ei, 1]
             dx = points[b, 0] - points[a, 0]
             dy = points[b, 1] - points[a, 1]
             dz = points[b, 2] - points[a, 2]
             ln = math.sqrt(dx * dx + dy * dy + dz * dz)
-            if not ln > limit * rest.len0[ei]:
+            if not ln > limit * rest.len0[ei] or not _over(rest, body, normals, limit, caps, ei, ln):
                 continue
-            if cap[ei] < 0.0:
-                cap[ei] = _skin_cap(rest, body, limit, ei, tri_hi, vhi)
-            if not ln > cap[ei]:
-                continue
-            if not exact[ei]:
-                cap[ei] *= _offset_factor(rest, body, normals, ei, feet, have_foot)
-                exact[ei] = True
-                if not ln > cap[ei]:
-                    continue
             if not limited[ei]:
                 limited[ei] = True
                 n_limited += 1
@@ -340,9 +427,8 @@ def _strain_frame(rest, body, normals, points, w, limit, iterations, margin, cap
                 vert_seen[b] = it
                 ends[n_ends] = b
                 n_ends += 1
-        if n_ends == 0:
+        if n_ends == 0 and n_moved == 0:
             break
-        n_moved = 0
         for k in range(n_ends):
             v = ends[k]
             sx, sy, sz, cnt = 0.0, 0.0, 0.0, 0.0
@@ -364,9 +450,10 @@ def _strain_frame(rest, body, normals, points, w, limit, iterations, margin, cap
             if not cnt > 0.0:
                 continue
             _move(rest, body, points, planes, margin, v, sx / cnt, sy / cnt, sz / cnt)
-            moved[n_moved] = v
-            n_moved += 1
-            moved_seen[v] = it
+            if moved_seen[v] != it:
+                moved_seen[v] = it
+                moved[n_moved] = v
+                n_moved += 1
         # the weld groups back within their rest reach (as ShortEdgeWeld does);
         # a member the clamp moves joins the next pass
         for g in range(rest.group_ptr.shape[0] - 1):
@@ -394,13 +481,32 @@ def _strain_frame(rest, body, normals, points, w, limit, iterations, margin, cap
                     moved[n_moved] = v
                     n_moved += 1
         # the next pass: the edges at the vertices this one moved
-        n_active = 0
+        lo, hi = n_e, -1
         for k in range(n_moved):
             v = moved[k]
             for j in range(rest.inc_ptr[v], rest.inc_ptr[v + 1]):
-                ei = rest.inc_edge[j]
-                if edge_seen[ei] != it:
-                    edge_seen[ei] = it
-                    active[n_active] = ei
-                    n_active += 1
+                ej = rest.inc_edge[j]
+                mark[ej] = it + 1
+                lo = min(lo, ej)
+                hi = max(hi, ej)
     return n_limited
+
+
+@jit(inline=True)
+def _over(rest, body, normals, limit, caps, ei, ln):
+    """Whether edge ei, ``ln`` long, is over its allowed length on body
+    (computed into ``caps`` the first time an edge needs it: the skin's
+    lower bound first, the offset factor only if that is passed)."""
+    cap, exact, tri_hi, vhi, feet, have_foot = caps
+    if not ln > limit * rest.len0[ei]:
+        return False
+    if cap[ei] < 0.0:
+        cap[ei] = _skin_cap(rest, body, limit, ei, tri_hi, vhi)
+    if not ln > cap[ei] * (1.0 + OVER_SLACK):
+        return False
+    if not exact[ei]:
+        cap[ei] *= _offset_factor(rest, body, normals, ei, feet, have_foot)
+        exact[ei] = True
+        if not ln > cap[ei] * (1.0 + OVER_SLACK):
+            return False
+    return True
