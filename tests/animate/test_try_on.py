@@ -495,14 +495,19 @@ def test_the_first_pose_s_dress_is_relaxed_before_the_binding(tmp_path, ref_fema
     (``relax_first_dress``), the first 16 frames: ponytail stretch p99
     1.16 -> 1.11, the suit's stretch max 1.26 -> 1.14 (measured; the same
     shot without it must stay as it was, so the option is real). Without
-    the weld's further rounds (they shorten some of the same edges)."""
+    the weld's further rounds (they shorten some of the same edges). Since
+    the strain limit's passes are Gauss-Seidel (session 33) the frames'
+    own passes take more of it: without / with, ponytail stretch p99 1.112
+    / 1.102 and max 1.210 / 1.139, the suit's max 1.201 / 1.172 (1.263 /
+    1.153 and 1.263 / 1.180 with the Jacobi passes, measured)."""
     import wearfit_usd.animate.try_on as try_on
     monkeypatch.setattr(try_on, "WELD_ROUND_PASSES", 0)
     new, old = _walk_16_with_and_without(tmp_path, ref_female, monkeypatch, "FIRST_DRESS_PASSES",
                                          ("ponytail01", "female_casualsuit01"))
     figs = {"with": new, "without": old}
-    assert new["ponytail01"]["stretch_p99"] <= 1.13 < old["ponytail01"]["stretch_p99"], figs
-    assert new["female_casualsuit01"]["stretch_max"] <= 1.2 < old["female_casualsuit01"]["stretch_max"], figs
+    assert new["ponytail01"]["stretch_p99"] <= min(1.13, old["ponytail01"]["stretch_p99"] - 0.005), figs
+    assert new["ponytail01"]["stretch_max"] <= 1.16 < old["ponytail01"]["stretch_max"] - 0.03, figs
+    assert new["female_casualsuit01"]["stretch_max"] <= min(1.2, old["female_casualsuit01"]["stretch_max"] - 0.02), figs
     assert new["female_casualsuit01"]["new_pen_pct"] <= 1.5, figs
 
 
