@@ -368,15 +368,11 @@ def _strain_frame(rest, body, normals, points, w, limit, iterations, margin, cap
                 jacobi[n_jacobi] = ei
                 n_jacobi += 1
                 continue
-            dx = points[b, 0] - points[a, 0]
-            dy = points[b, 1] - points[a, 1]
-            dz = points[b, 2] - points[a, 2]
-            ln = math.sqrt(dx * dx + dy * dy + dz * dz)
+            dx, dy, dz, ln = _edge(points, a, b)
             if not ln > limit * rest.len0[ei] or not _over(rest, body, normals, limit, caps, ei, ln):
                 continue
-            if not limited[ei]:
-                limited[ei] = True
-                n_limited += 1
+            n_limited += not limited[ei]
+            limited[ei] = True
             wa, wb = w[a], w[b]
             sa = wa / max(wa + wb, 1e-300)
             f = (ln - cap[ei]) / max(ln, 1e-300)
@@ -403,15 +399,11 @@ def _strain_frame(rest, body, normals, points, w, limit, iterations, margin, cap
         for k in range(n_jacobi):
             ei = jacobi[k]
             a, b = rest.edges[ei, 0], rest.edges[ei, 1]
-            dx = points[b, 0] - points[a, 0]
-            dy = points[b, 1] - points[a, 1]
-            dz = points[b, 2] - points[a, 2]
-            ln = math.sqrt(dx * dx + dy * dy + dz * dz)
+            dx, dy, dz, ln = _edge(points, a, b)
             if not ln > limit * rest.len0[ei] or not _over(rest, body, normals, limit, caps, ei, ln):
                 continue
-            if not limited[ei]:
-                limited[ei] = True
-                n_limited += 1
+            n_limited += not limited[ei]
+            limited[ei] = True
             wa, wb = w[a], w[b]
             share[ei] = wa / max(wa + wb, 1e-300)
             corr[ei, 0] = (ln - cap[ei]) / max(ln, 1e-300)
@@ -490,6 +482,15 @@ def _strain_frame(rest, body, normals, points, w, limit, iterations, margin, cap
                 lo = min(lo, ej)
                 hi = max(hi, ej)
     return n_limited
+
+
+@jit(inline=True)
+def _edge(points, a, b):
+    """Edge a-b's vector (b - a) and length."""
+    dx = points[b, 0] - points[a, 0]
+    dy = points[b, 1] - points[a, 1]
+    dz = points[b, 2] - points[a, 2]
+    return dx, dy, dz, math.sqrt(dx * dx + dy * dy + dz * dz)
 
 
 @jit(inline=True)
