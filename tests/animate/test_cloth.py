@@ -381,9 +381,9 @@ def test_longskirt_walk_first_frame_keeps_the_calf_inside(tmp_path):
     # 1.33 / 1.53 since the first pose's dress takes the shoes where the
     # shot skins them (session 32): the cloth's first step over the issue's
     # 1.5 on one 16 mm edge behind the calf, 16 cm over the floor (the whole walk,
-    # measured every second frame: 1.43 -> 1.47); 1.34 / 1.62 with the strain
-    # limit's Gauss-Seidel passes (session 33; the same edge, its ends on the
-    # cloth's floors, which keep the Jacobi mean; the whole walk 1.47 -> 1.50)
+    # measured every second frame: 1.43 -> 1.47); 1.32 / 1.52 with the strain
+    # limit's Gauss-Seidel passes (session 33; 1.34 / 1.62 before the vertices
+    # at the skin kept the Jacobi mean)
     from wearfit_usd.animate.try_on import AnimateOptions, animate
     from wearfit_usd.io.bvh import read_bvh
     from wearfit_usd.io.usd import read_character
@@ -393,7 +393,7 @@ def test_longskirt_walk_first_frame_keeps_the_calf_inside(tmp_path):
                   AnimateOptions(start=1, end=9, fps=30, measure_every=1))
     assert rep.frames == 2
     assert max(rep.motion_series["long_skirt"]["new_pen_pct"]) < 0.5
-    assert max(rep.motion_series["long_skirt"]["stretch_max"]) < 1.7
+    assert max(rep.motion_series["long_skirt"]["stretch_max"]) < 1.6
 
 
 def test_default_collider_leaves_out_the_arms_of_the_plans_body():

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from wearfit_usd.animate.short_edges import ShortEdgeWeld
-from wearfit_usd.animate.strain_limit import StrainLimit
+from wearfit_usd.animate.strain_limit import NEAR_SKIN, StrainLimit
 from wearfit_usd.geometry.mesh import edges as mesh_edges
 from wearfit_usd.kernels import HAVE_NUMBA, wavefront_levels, weld_groups
 
@@ -255,6 +255,26 @@ def test_the_weld_holds_inside_every_pass(compiled):
         StrainLimit(q[:2], e[:1], faces, body, movable[:2], weld=weld)
     with pytest.raises(ValueError, match="each with a member"):
         weld_groups(np.array([1, 2]), np.array([0, 2]), np.ones(2))   # group 1 empty: a division by zero
+
+
+@pytest.mark.parametrize("compiled", [False, True] if HAVE_NUMBA else [False])
+def test_vertices_at_the_skin_take_the_jacobi_mean(compiled):
+    """The line of four of the weld test (no weld), 1.2 mm over the plane:
+    within NEAR_SKIN of the skin every vertex takes the mean of its edges'
+    corrections computed at the pass's start. One pass: only 0-1 is over
+    (15 mm), so 1 moves its 4 mm and 2 stays (edge by edge, 1-2 would have
+    followed). At 1 cm over the plane the same line goes edge by edge."""
+    body, faces = plane()
+    e = np.array([[0, 1], [1, 2], [2, 3]])
+    movable = np.array([False, True, True, True])
+    x = np.array([-0.0105, -0.0005, 0.0005, 0.0105])
+    for y, want in ((0.0012, [-0.0045, 0.0005, 0.0105]), (0.01, [-0.00255, -0.000975, 0.010025])):
+        assert (y < NEAR_SKIN) == (y == 0.0012)
+        q = np.stack([x, np.full(4, y), np.zeros(4)], axis=1)
+        p = q.copy()
+        p[0, 0] -= 0.005
+        out = StrainLimit(q, e, faces, body, movable, iterations=1, compiled=compiled)(body, p.copy())
+        np.testing.assert_allclose(out[1:, 0], want, atol=1e-12)
 
 
 def test_wavefront_levels_keep_the_order_of_edges_at_a_vertex():

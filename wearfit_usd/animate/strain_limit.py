@@ -32,26 +32,26 @@ own, neighbours near each other), descending on the next pass, each edge
 seeing its neighbours' moves of the same pass, so one pass carries a pull
 along a whole strip (halving it at each edge) where the mean of a vertex's
 corrections (Jacobi, sessions 26-32) carried it one edge per pass. Edges
-with an end on a plane keep the Jacobi mean, taken after the sweep: moves
-cut by a floor and made one at a time ratchet a vertex along it. An edge
-is over only by more than ``kernels.strain.OVER_SLACK`` (relative), so a
-pass with nothing left to do ends the frame's passes. Every-clip sweep,
-same tree otherwise (session 33): figures over issue 17's limits 50 -> 41
-(``male_casualsuit01`` 6 -> 3, ``ponytail01`` 14 -> 12, the long skirt
-23 -> 21, ``female_casualsuit02`` 6 -> 5, ``female_casualsuit01`` 1 -> 0);
-stretch max, mean over the clips: ``ponytail01`` 2.18 -> 1.70 (the punch
-3.94 -> 1.71), ``female_casualsuit02`` 1.99 -> 1.67, the long skirt 2.19 ->
-2.13 (its run 4.21 -> 1.86); up: ``male_casualsuit01`` 1.61 -> 1.72 (the
-front of the trousers in 131_01's lunge 1.87 -> 2.78, the pirouette 1.52 ->
-1.72), the long skirt's 131_01 3.29 -> 4.73 (both over before), the
-ponytail's punch new penetrations 1.21 -> 1.51 % (over before). Colour
-order instead (a colour of edges with no shared vertex at a time, the
-numpy twin one call per colour): 46 over; the mesh's order gets farther
-per pass. The compiled pass's time on ``ref_male``'s 28,258 item edges:
-1.5-2.3 ms a call (Jacobi 1.5-2.5 ms, the same pickled frames); the CMU
-walk's strain time 0.10 -> 0.24 s (80 frames). The numpy twin follows the
-same order as waves of edges that share no vertex
-(:func:`kernels.strain.wavefront_levels`): 140 ms a call (Jacobi 25 ms).
+with an end on a plane, or within ``NEAR_SKIN`` of the skin under it when
+the call starts, keep the Jacobi mean, taken after the sweep: a move cut
+at a floor or the skin slides the vertex along it, and such slides made
+one edge at a time ratchet (``ref_male`` on ``body_male_muscular_heavy``,
+CMU walk: the trousers' inner thighs, 25 mm edges on the skin opened to
+55 mm, stretch max 3.86, p99 1.14). An edge is over only by more than
+``kernels.strain.OVER_SLACK`` (relative), so a pass with nothing left to
+do ends the frame's passes. Every-clip sweep, same tree otherwise (session
+33): figures over issue 17's limits 50 -> 44 (``male_casualsuit01`` 6 ->
+2, ``ponytail01`` 14 -> 13, ``female_casualsuit02`` 6 -> 5,
+``female_casualsuit01`` 1 -> 0, the long skirt 23 -> 24); Gauss-Seidel at
+the skin too: 41, but the muscular walk above. The motion benchmark (60
+frames): ``male_casualsuit01`` on ``body_male_muscular_heavy`` walk stretch
+max 1.92 -> 1.84, arms held high 1.60 -> 1.54. The compiled pass's time on
+``ref_male``'s 28,258 item edges: 1.5-2.3 ms a call (Jacobi 1.5-2.5 ms,
+the same pickled frames). The numpy twin follows the same order as waves
+of edges that share no vertex (:func:`kernels.strain.wavefront_levels`):
+140 ms a call (Jacobi 25 ms). Colour order instead (a colour of edges with
+no shared vertex at a time): 46 over; the mesh's order gets farther per
+pass. 32 passes instead of 16 (Gauss-Seidel at the skin too): 41 -> 39.
 
 Measured (every-clip sweep, 8 CMU clips, same tree otherwise; means over
 the clips): stretch p99 of the long skirt 1.32 -> 1.15,
@@ -153,6 +153,11 @@ WELD_ROUND_PASSES = 16
 #: in new penetrations (0.98 -> 1.12 %); 0 or 1 round: 83 and 68 over.
 WELD_ROUNDS = 4
 MARGIN = 0.001     # m: no move takes a vertex closer to the skin under it than this
+#: m: a vertex closer than this to the skin under it when a call starts takes
+#: the Jacobi mean of its edges' corrections, as one on a cloth floor does (its
+#: moves one edge at a time are cut at the skin and slide along it: see the
+#: module docstring)
+NEAR_SKIN = 0.0015
 
 
 class StrainLimit:
@@ -248,6 +253,18 @@ class StrainLimit:
                             self.len0[idx], normals=(self._normals0, normals))
         return self.limit * self.len0[idx] * hi_v * np.maximum(fac, 1.0)
 
+    def _skin_under(self, body: np.ndarray, rows: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The skin under vertices ``rows`` at ``p`` (R, 3) on ``body``: its
+        unit normal (R, 3) and their height over it (R,), the skin being a
+        vertex's static closest triangle on this body (its point at the same
+        barycentrics, that triangle's normal)."""
+        f = self.faces[self.foot_tri[rows]]
+        v = body[f]
+        n = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+        foot = np.einsum("rc,rci->ri", self.foot_bary[rows], v)
+        return n, np.einsum("ri,ri->r", p - foot, n)
+
     def _not_inward(self, body: np.ndarray, rows: np.ndarray, p: np.ndarray, step: np.ndarray,
                     planes: np.ndarray | None = None) -> np.ndarray:
         """``step`` (R, 3) of vertices ``rows`` at ``p`` (R, 3), with its
@@ -256,12 +273,7 @@ class StrainLimit:
         (its point at the same barycentrics, that triangle's normal). A
         strain-limited edge over a bending joint shortens along its chord,
         into the body; the penetration pass has already run."""
-        f = self.faces[self.foot_tri[rows]]
-        v = body[f]
-        n = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
-        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-        foot = np.einsum("rc,rci->ri", self.foot_bary[rows], v)
-        clear = np.einsum("ri,ri->r", p - foot, n)
+        n, clear = self._skin_under(body, rows, p)
         inward = -np.einsum("ri,ri->r", step, n)
         room = np.maximum(clear - MARGIN, 0.0)
         cut = np.maximum(inward - room, 0.0)
@@ -301,7 +313,8 @@ class StrainLimit:
                     self._no_planes = np.zeros((len(work), 6))  # no floors: made once, not per call
                 planes = self._no_planes
             self.stats["edges_limited"] += strain_frame(self._rest, body, normals, work, w, self.limit, its, MARGIN,
-                                                        caps, np.ascontiguousarray(planes, dtype=np.float64))
+                                                        caps, np.ascontiguousarray(planes, dtype=np.float64),
+                                                        NEAR_SKIN)
             if work is not points:
                 points[:] = work
             return points
@@ -314,10 +327,12 @@ class StrainLimit:
         w = self.inv_mass.copy()
         if pushed is not None:
             w[np.asarray(pushed, dtype=bool)] /= HEAVY
-        on_plane = None if planes is None else (np.asarray(planes)[:, 3:] != 0.0).any(axis=1)
+        # the vertices that take the Jacobi mean: on a plane, or at the skin
+        on_plane = self._skin_under(body, np.arange(n), points)[1] < NEAR_SKIN
+        if planes is not None:
+            on_plane |= (np.asarray(planes)[:, 3:] != 0.0).any(axis=1)
         for it in range(its):
-            jac = np.zeros(len(active), dtype=bool) if on_plane is None else \
-                on_plane[e[active, 0]] | on_plane[e[active, 1]]
+            jac = on_plane[e[active, 0]] | on_plane[e[active, 1]]
             gs, jac = active[~jac], active[jac]
             self._over(body, points, active, cap, known, first=it == 0)  # the caps of the edges over now, at once
             # Gauss-Seidel over the edges off the planes, in ascending edge
@@ -352,10 +367,9 @@ class StrainLimit:
                 moved.append(rows)
                 later = self._touching(rows)
                 later = later[(wave[later] > now) & ~pending[later] & ~jac_set[later]]
-                if on_plane is not None:
-                    floor = on_plane[e[later, 0]] | on_plane[e[later, 1]]
-                    jac_set[later[floor]] = True
-                    later = later[~floor]
+                floor = on_plane[e[later, 0]] | on_plane[e[later, 1]]
+                jac_set[later[floor]] = True
+                later = later[~floor]
                 pending[later] = True
                 queue = np.concatenate([queue, later])
             jac = np.flatnonzero(jac_set)

@@ -264,25 +264,27 @@ def clear_caps(caps: StrainCaps) -> None:
 
 
 def strain_frame(rest, body, normals, points, w, limit, iterations, margin, caps: StrainCaps | None = None,
-                 planes: np.ndarray | None = None) -> int:
+                 planes: np.ndarray | None = None, near_skin: float = 0.0) -> int:
     """One frame's strain limit, in place on points (M, 3); w (M,) the
     vertices' inverse masses (0: fixed). ``caps``: the allowed lengths on
     this body known from an earlier call (updated); None: computed afresh.
     ``planes`` (M, 6): a second floor per vertex this frame, a point (3) and
     a unit normal (3) no move may take it behind (a zero normal: none).
+    ``near_skin``: a vertex closer than this to the skin under it when the
+    call starts takes the Jacobi mean, as one with a plane does.
     Returns the number of edges it shortened."""
     if caps is None:
         caps = new_caps(rest.edges.shape[0], points.shape[0], rest.faces.shape[0])
     if planes is None:
         planes = np.zeros((points.shape[0], 6))
-    return _strain_frame(rest, body, normals, points, w, limit, iterations, margin, caps, planes)
+    return _strain_frame(rest, body, normals, points, w, limit, iterations, margin, caps, planes, float(near_skin))
 
 
 @jit(inline=True)
-def _move(rest, body, points, planes, margin, v, sx, sy, sz):
-    """Move vertex v by (sx, sy, sz), the part into the body cut to what
-    keeps it ``margin`` outside the skin under it (its rest closest
-    triangle on this body) and not behind its plane (``planes[v]``)."""
+def _skin_clearance(rest, body, points, v):
+    """The unit normal of the skin under vertex v (its rest closest triangle
+    on this body) and v's height over that skin along it (at the same
+    barycentrics): (nx, ny, nz, clearance)."""
     t = rest.foot_tri[v]
     i, j, k2 = rest.faces[t, 0], rest.faces[t, 1], rest.faces[t, 2]
     e1x, e1y, e1z = body[j, 0] - body[i, 0], body[j, 1] - body[i, 1], body[j, 2] - body[i, 2]
@@ -299,7 +301,15 @@ def _move(rest, body, points, planes, margin, v, sx, sy, sz):
         px += bw * body[vq, 0]
         py += bw * body[vq, 1]
         pz += bw * body[vq, 2]
-    clear = (points[v, 0] - px) * nx + (points[v, 1] - py) * ny + (points[v, 2] - pz) * nz
+    return nx, ny, nz, (points[v, 0] - px) * nx + (points[v, 1] - py) * ny + (points[v, 2] - pz) * nz
+
+
+@jit(inline=True)
+def _move(rest, body, points, planes, margin, v, sx, sy, sz):
+    """Move vertex v by (sx, sy, sz), the part into the body cut to what
+    keeps it ``margin`` outside the skin under it (its rest closest
+    triangle on this body) and not behind its plane (``planes[v]``)."""
+    nx, ny, nz, clear = _skin_clearance(rest, body, points, v)
     inward = -(sx * nx + sy * ny + sz * nz)
     cut = max(inward - max(clear - margin, 0.0), 0.0)
     sx += cut * nx
@@ -323,7 +333,7 @@ def _has_floor(planes, v):
 
 
 @jit
-def _strain_frame(rest, body, normals, points, w, limit, iterations, margin, caps, planes):
+def _strain_frame(rest, body, normals, points, w, limit, iterations, margin, caps, planes, near_skin):
     """:func:`strain_frame`'s passes. Each pass looks at the edges that can
     be over, in ascending edge order on even passes and descending on odd
     ones: all in the first pass, then those at a vertex the last pass moved
@@ -350,9 +360,9 @@ def _strain_frame(rest, body, normals, points, w, limit, iterations, margin, cap
     vert_seen = np.full(m, -1, dtype=np.int64)
     moved = np.empty(m, dtype=np.int64)
     moved_seen = np.full(m, -1, dtype=np.int64)
-    on_plane = np.zeros(m, dtype=np.bool_)
+    on_plane = np.zeros(m, dtype=np.bool_)           # the vertices that take the Jacobi mean
     for v in range(m):
-        on_plane[v] = _has_floor(planes, v)
+        on_plane[v] = _has_floor(planes, v) or _skin_clearance(rest, body, points, v)[3] < near_skin
     for it in range(iterations):
         n_moved = 0
         n_jacobi = 0
