@@ -45,9 +45,10 @@ do ends the frame's passes. Every-clip sweep, same tree otherwise (session
 ``female_casualsuit01`` 1 -> 0, the long skirt 23 -> 24); Gauss-Seidel at
 the skin too: 41, but the muscular walk above. The motion benchmark (60
 frames): ``male_casualsuit01`` on ``body_male_muscular_heavy`` walk stretch
-max 1.92 -> 1.84, arms held high 1.60 -> 1.54. The compiled pass's time on
-``ref_male``'s 28,258 item edges: 1.5-2.3 ms a call (Jacobi 1.5-2.5 ms,
-the same pickled frames). The numpy twin follows the same order as waves
+max 1.92 -> 1.84, arms held high 1.60 -> 1.54. The compiled passes' time in
+the CMU walk (``ref_male``'s 28,258 item edges on ``body_male_heavy``, 80
+frames, 101 calls): 0.22-0.23 s (Jacobi 0.10 s; the whole shot 4.4-4.5 s
+against 4.2-4.6 s; two runs each). The numpy twin follows the same order as waves
 of edges that share no vertex (:func:`kernels.strain.wavefront_levels`):
 140 ms a call (Jacobi 25 ms). Colour order instead (a colour of edges with
 no shared vertex at a time): 46 over; the mesh's order gets farther per
