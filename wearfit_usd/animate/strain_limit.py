@@ -356,14 +356,9 @@ class StrainLimit:
                 if len(on) == 0:
                     continue
                 limited[on] = True
-                ce = e[on]
-                wa, wb = w[ce[:, 0]], w[ce[:, 1]]
-                share_a = wa / np.maximum(wa + wb, 1e-300)
-                c3 = ((ln - cap[on]) / np.maximum(ln, 1e-300))[:, None] * d
                 # both ends at once: no two edges of a wave share a vertex
-                ok = np.concatenate([wa > 0, wb > 0])
-                rows = np.concatenate([ce[:, 0], ce[:, 1]])[ok]
-                step = np.concatenate([c3 * share_a[:, None], -c3 * (1.0 - share_a)[:, None]])[ok]
+                ends, moves, ok = self._pulls(on, d, ln, cap, w)
+                rows, step = ends[ok], moves[ok]
                 points[rows] += self._not_inward(body, rows, points[rows], step, planes)
                 moved.append(rows)
                 later = self._touching(rows)
@@ -378,13 +373,8 @@ class StrainLimit:
             on, d, lo = self._over(body, points, jac, cap, known)
             if len(on):
                 limited[on] = True
-                ce = e[on]
-                wa, wb = w[ce[:, 0]], w[ce[:, 1]]
-                share_a = wa / np.maximum(wa + wb, 1e-300)
-                c = ((lo - cap[on]) / np.maximum(lo, 1e-300))[:, None] * d
-                ends = np.concatenate([ce[:, 0], ce[:, 1]])
-                moves = np.concatenate([c * share_a[:, None], -c * (1.0 - share_a)[:, None]])
-                count = np.bincount(ends, weights=np.concatenate([wa > 0, wb > 0]).astype(np.float64), minlength=n)
+                ends, moves, ok = self._pulls(on, d, lo, cap, w)
+                count = np.bincount(ends, weights=ok.astype(np.float64), minlength=n)
                 rows = np.flatnonzero(count > 0)
                 step = np.stack([np.bincount(ends, weights=moves[:, i], minlength=n)[rows] for i in range(3)], axis=1)
                 step /= count[rows, None]
@@ -398,6 +388,20 @@ class StrainLimit:
             active = self._touching(moved)
         self.stats["edges_limited"] += int(limited.sum())
         return points
+
+    def _pulls(self, on: np.ndarray, d: np.ndarray, ln: np.ndarray, cap: np.ndarray,
+               w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The moves of the ends of edges ``on`` (k,), over their cap, with
+        vectors ``d`` (k, 3) and lengths ``ln`` (k,), shared by the ends'
+        inverse masses ``w``: (end rows (2k,): every a then every b, their
+        moves (2k, 3), whether each end may move (2k,) bool)."""
+        ce = self.edges[on]
+        wa, wb = w[ce[:, 0]], w[ce[:, 1]]
+        share_a = wa / np.maximum(wa + wb, 1e-300)
+        c = ((ln - cap[on]) / np.maximum(ln, 1e-300))[:, None] * d
+        return (np.concatenate([ce[:, 0], ce[:, 1]]),
+                np.concatenate([c * share_a[:, None], -c * (1.0 - share_a)[:, None]]),
+                np.concatenate([wa > 0, wb > 0]))
 
     def _over(self, body: np.ndarray, points: np.ndarray, idx: np.ndarray, cap: np.ndarray, known: np.ndarray,
               first: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

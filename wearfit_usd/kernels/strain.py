@@ -11,7 +11,8 @@ offset factor of its clearance, as
 allowed length (by more than ``OVER_SLACK``) moves its ends toward each
 other at once (Gauss-Seidel: the next edge sees them moved), cut where a
 move would go into the body; an edge with an end on this frame's plane (a
-cloth floor) instead stores its correction, and after the loop each vertex
+cloth floor) or nearer the skin than ``near_skin`` when the call starts
+instead stores its correction, and after the loop each vertex
 at such an edge takes the mean of its corrections (gathered over its own
 edges in ascending order; Jacobi), cut likewise; then every weld group
 (item vertices joined by sub-millimetre edges,
@@ -339,8 +340,8 @@ def _strain_frame(rest, body, normals, points, w, limit, iterations, margin, cap
     ones: all in the first pass, then those at a vertex the last pass moved
     and those at a vertex this pass moved before their turn (the others
     keep their length: as if it looked at all). An edge over its cap with
-    no end on a plane moves its ends at once (Gauss-Seidel); one with an
-    end on a plane stores its correction, and after the loop each vertex at
+    no end on a plane or at the skin moves its ends at once (Gauss-Seidel);
+    one with such an end stores its correction, and after the loop each vertex at
     such an edge gathers its corrections over its own edges in ascending
     edge order (the Jacobi mean) and moves; then the weld groups are
     clamped to their rest reach, a member the clamp moved joining the next
@@ -355,7 +356,7 @@ def _strain_frame(rest, body, normals, points, w, limit, iterations, margin, cap
     share = np.empty(n_e)                             # and end a's share
     mark = np.zeros(n_e, dtype=np.int64)              # the pass that looks at an edge (all: the first)
     lo, hi = 0, n_e - 1                               # the marked edges' range
-    jacobi = np.empty(n_e, dtype=np.int64)            # the pass's active edges with an end on a plane
+    jacobi = np.empty(n_e, dtype=np.int64)            # the pass's active edges with an end on a plane or at the skin
     ends = np.empty(m, dtype=np.int64)                # the vertices at a plane edge over its cap
     vert_seen = np.full(m, -1, dtype=np.int64)
     moved = np.empty(m, dtype=np.int64)
@@ -505,12 +506,11 @@ def _edge(points, a, b):
 
 @jit(inline=True)
 def _over(rest, body, normals, limit, caps, ei, ln):
-    """Whether edge ei, ``ln`` long, is over its allowed length on body
+    """Whether edge ei, ``ln`` long (already over ``limit`` x its rest
+    length: the callers' cheap test), is over its allowed length on body
     (computed into ``caps`` the first time an edge needs it: the skin's
     lower bound first, the offset factor only if that is passed)."""
     cap, exact, tri_hi, vhi, feet, have_foot = caps
-    if not ln > limit * rest.len0[ei]:
-        return False
     if cap[ei] < 0.0:
         cap[ei] = _skin_cap(rest, body, limit, ei, tri_hi, vhi)
     if not ln > cap[ei] * (1.0 + OVER_SLACK):
