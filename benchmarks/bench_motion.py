@@ -22,7 +22,7 @@ frame 0, 0 on cmu3dsmax_131_01_start_walk_stop). Every shot of a reference with 
 
 Every clip: ``--every-clip`` runs every CMU clip, whole, at 30 fps on one
 target per reference and on ``ref_male``'s two (:data:`SWEEP_PAIRS`), the binding
-only, the measures on every second frame (about 6,700 frames, 20 minutes on one core).
+only, the measures on every second frame (about 6,700 frames, 18 minutes on one core).
 
 Run alone: ``python3 benchmarks/bench_motion.py [--full | --every-clip]``.
 """

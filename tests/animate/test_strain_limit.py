@@ -277,6 +277,35 @@ def test_vertices_at_the_skin_take_the_jacobi_mean(compiled):
         np.testing.assert_allclose(out[1:, 0], want, atol=1e-12)
 
 
+@pytest.mark.parametrize("compiled", [False, True] if HAVE_NUMBA else [False])
+def test_a_vertex_far_behind_its_skin_is_not_cut_at_it(compiled):
+    """An edge 10 mm long, 1 cm over the plane at rest. In the frame its fixed
+    end is 13 cm under the plane and its free end 10 cm under (hair swung
+    round: the skin it hung over at rest is not under it, and the
+    penetration pass has put it outside the body): the free end moves
+    straight to the allowed length, 1.1 x 10 mm from the fixed end (before,
+    every move into that plane was cut and the edge stayed 3x long). Half of
+    FOOT_LOST under the plane the move into the body is still cut: the end
+    only slides along the plane."""
+    from wearfit_usd.animate.strain_limit import FOOT_LOST
+    body, faces = plane()
+    e = np.array([[0, 1]])
+    q = np.array([[0.0, 0.01, 0.0], [0.01, 0.01, 0.0]])
+    movable = np.array([False, True])
+    for y1, lost in ((-0.10, True), (-0.5 * FOOT_LOST, False)):
+        assert (y1 < -FOOT_LOST) == lost
+        p = np.array([[0.0, y1 - 0.03, 0.0], [0.01, y1, 0.0]])
+        out = StrainLimit(q, e, faces, body, movable, iterations=1, compiled=compiled)(body, p.copy())
+        np.testing.assert_array_equal(out[0], p[0])
+        if lost:
+            u = (p[1] - p[0]) / np.linalg.norm(p[1] - p[0])
+            np.testing.assert_allclose(out[1], p[0] + 0.011 * u, atol=1e-12)
+        else:
+            assert out[1, 1] == pytest.approx(y1, abs=1e-12)      # nothing into the body
+            assert out[1, 0] < p[1, 0] - 1e-3                       # it slid towards the fixed end
+            assert np.linalg.norm(out[1] - out[0]) > 0.029          # and stays over its cap
+
+
 def test_wavefront_levels_keep_the_order_of_edges_at_a_vertex():
     e = np.array([[0, 1], [2, 3], [1, 2], [3, 4], [0, 4]])
     fwd, bwd = wavefront_levels(e, 5)

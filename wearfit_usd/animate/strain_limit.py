@@ -22,7 +22,15 @@ as much: it is where it must be), ``iterations`` passes, and no move taking a
 vertex closer than ``MARGIN`` to the skin under it (an edge over a bending
 joint shortens along its chord, into the body), nor behind a plane the
 caller gives for this frame (``planes``: a skirt's free vertices, the skin
-the cloth found under them, :meth:`cloth.ClothSolver.floors`). Only edges longer than
+the cloth found under them, :meth:`cloth.ClothSolver.floors`). A vertex more
+than ``kernels.strain.FOOT_LOST`` behind the skin under it is not over that
+skin any more (hair or a skirt swung round it; the penetration pass has put
+it outside the body): its moves are not cut there, nor is it a vertex at the
+skin. Before, every inward move of such a vertex was cut whole, its edges
+could not shorten, and the passes piled their excess onto its neighbours'
+(session 34, every-clip sweep with ``ref_male`` on ``body_male_muscular_heavy``
+added, same run: figures over issue 17's limits 55 -> 50; see
+``docs/motion_loose_parts.md``). Only edges longer than
 ``limit`` times their static length are examined (the skin's stretch is
 then computed for them alone), so a frame without tears costs one pass of
 edge lengths.
@@ -111,7 +119,7 @@ from ..kernels import (
     wavefront_levels,
     weld_groups,
 )
-from ..kernels.strain import OVER_SLACK, REACH_SLACK
+from ..kernels.strain import FOOT_LOST, OVER_SLACK, REACH_SLACK
 
 LIMIT = 1.1        # x the body's own stretch an edge may reach
 ITERATIONS = 16    # passes per frame (at most)
@@ -277,7 +285,8 @@ class StrainLimit:
         n, clear = self._skin_under(body, rows, p)
         inward = -np.einsum("ri,ri->r", step, n)
         room = np.maximum(clear - MARGIN, 0.0)
-        cut = np.maximum(inward - room, 0.0)
+        # no cut where that skin is not under the vertex any more (FOOT_LOST)
+        cut = np.where(clear > -FOOT_LOST, np.maximum(inward - room, 0.0), 0.0)
         step = step + cut[:, None] * n
         if planes is not None:
             # and not behind this frame's plane of the vertex (zero normal: none)
@@ -329,7 +338,8 @@ class StrainLimit:
         if pushed is not None:
             w[np.asarray(pushed, dtype=bool)] /= HEAVY
         # the vertices that take the Jacobi mean: on a plane, or at the skin
-        on_plane = self._skin_under(body, np.arange(n), points)[1] < NEAR_SKIN
+        clear = self._skin_under(body, np.arange(n), points)[1]
+        on_plane = (clear < NEAR_SKIN) & (clear > -FOOT_LOST)
         if planes is not None:
             on_plane |= (np.asarray(planes)[:, 3:] != 0.0).any(axis=1)
         for it in range(its):
