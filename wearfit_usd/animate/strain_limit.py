@@ -29,7 +29,7 @@ it outside the body): its moves are not cut there, nor is it a vertex at the
 skin. Before, every inward move of such a vertex was cut whole, its edges
 could not shorten, and the passes piled their excess onto its neighbours'
 (session 34, every-clip sweep with ``ref_male`` on ``body_male_muscular_heavy``
-added, same run: figures over issue 17's limits 55 -> 50; see
+added, same run: figures over issue 17's limits 55 -> 46 with 2 mm; see
 ``docs/motion_loose_parts.md``). Only edges longer than
 ``limit`` times their static length are examined (the skin's stretch is
 then computed for them alone), so a frame without tears costs one pass of
