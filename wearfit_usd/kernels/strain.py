@@ -10,9 +10,10 @@ offset factor of its clearance, as
 :func:`dress.body_stretch.offset_factor` compute them), and one over its
 allowed length (by more than ``OVER_SLACK``) moves its ends toward each
 other at once (Gauss-Seidel: the next edge sees them moved), cut where a
-move would go into the body (not for a vertex more than ``FOOT_LOST``
-behind the skin under it: that skin is not under it any more); an edge with an end on this frame's plane (a
-cloth floor) or nearer the skin than ``near_skin`` when the call starts
+move would go into the body (not for a vertex more than ``foot_lost``
+behind the skin under it: that skin is not under it any more); an edge
+with an end on this frame's plane (a cloth floor) or nearer the skin than
+``near_skin`` when the call starts
 instead stores its correction, and after the loop each vertex
 at such an edge takes the mean of its corrections (gathered over its own
 edges in ascending order; Jacobi), cut likewise; then every weld group
@@ -43,19 +44,6 @@ REACH_SLACK = 1e-9
 #: with nothing left to do ends the frame's passes (and the two paths, which
 #: round differently, agree on which edges are over)
 OVER_SLACK = 1e-9
-#: m: a vertex farther than this behind the skin under it (its static
-#: closest triangle, on this body) is not over that skin any more: hair or a
-#: skirt swung round (a ponytail in a pirouette 10 cm behind the plane of
-#: the neck it hung over at rest; the penetration pass has already put it
-#: outside the body), so no move of it is cut at that plane and it is not a
-#: vertex at the skin (which takes the Jacobi mean). Before, every inward
-#: move of such a vertex was cut whole, its edges could not shorten, and the
-#: passes piled their excess onto its neighbours' edges. Every-clip sweep
-#: (four pairs), same tree otherwise: figures over issue 17's limits 55 ->
-#: 46 with 2 mm (5 mm: 50, 15 mm: 50); ``ponytail01`` start-walk-stop
-#: stretch max 2.12 -> 1.18, the long skirt's run new penetrations 2.10 ->
-#: 0.84 % and coverage loss 14.13 -> 8.88 %
-FOOT_LOST = 0.002
 
 
 class StrainRest(NamedTuple):
@@ -279,7 +267,7 @@ def clear_caps(caps: StrainCaps) -> None:
 
 
 def strain_frame(rest, body, normals, points, w, limit, iterations, margin, caps: StrainCaps | None = None,
-                 planes: np.ndarray | None = None, near_skin: float = 0.0) -> int:
+                 planes: np.ndarray | None = None, near_skin: float = 0.0, foot_lost: float = math.inf) -> int:
     """One frame's strain limit, in place on points (M, 3); w (M,) the
     vertices' inverse masses (0: fixed). ``caps``: the allowed lengths on
     this body known from an earlier call (updated); None: computed afresh.
@@ -287,12 +275,17 @@ def strain_frame(rest, body, normals, points, w, limit, iterations, margin, caps
     a unit normal (3) no move may take it behind (a zero normal: none).
     ``near_skin``: a vertex closer than this to the skin under it when the
     call starts takes the Jacobi mean, as one with a plane does.
+    ``foot_lost``: a vertex farther than this behind the skin under it is
+    not over that skin any more: no move of it is cut there and it does not
+    count as at the skin (``animate.strain_limit.FOOT_LOST``; default: every
+    vertex is over its skin).
     Returns the number of edges it shortened."""
     if caps is None:
         caps = new_caps(rest.edges.shape[0], points.shape[0], rest.faces.shape[0])
     if planes is None:
         planes = np.zeros((points.shape[0], 6))
-    return _strain_frame(rest, body, normals, points, w, limit, iterations, margin, caps, planes, float(near_skin))
+    return _strain_frame(rest, body, normals, points, w, limit, iterations, margin, caps, planes, float(near_skin),
+                         float(foot_lost))
 
 
 @jit(inline=True)
@@ -320,12 +313,13 @@ def _skin_clearance(rest, body, points, v):
 
 
 @jit(inline=True)
-def _move(rest, body, points, planes, margin, v, sx, sy, sz):
+def _move(rest, body, points, planes, margin, foot_lost, v, sx, sy, sz):
     """Move vertex v by (sx, sy, sz), the part into the body cut to what
     keeps it ``margin`` outside the skin under it (its rest closest
-    triangle on this body) and not behind its plane (``planes[v]``)."""
+    triangle on this body; not when v is more than ``foot_lost`` behind it)
+    and not behind its plane (``planes[v]``)."""
     nx, ny, nz, clear = _skin_clearance(rest, body, points, v)
-    if clear > -FOOT_LOST:  # else that skin is not under it (FOOT_LOST)
+    if clear > -foot_lost:  # else that skin is not under it
         inward = -(sx * nx + sy * ny + sz * nz)
         cut = max(inward - max(clear - margin, 0.0), 0.0)
         sx += cut * nx
@@ -349,7 +343,7 @@ def _has_floor(planes, v):
 
 
 @jit
-def _strain_frame(rest, body, normals, points, w, limit, iterations, margin, caps, planes, near_skin):
+def _strain_frame(rest, body, normals, points, w, limit, iterations, margin, caps, planes, near_skin, foot_lost):
     """:func:`strain_frame`'s passes. Each pass looks at the edges that can
     be over, in ascending edge order on even passes and descending on odd
     ones: all in the first pass, then those at a vertex the last pass moved
@@ -379,7 +373,7 @@ def _strain_frame(rest, body, normals, points, w, limit, iterations, margin, cap
     on_plane = np.zeros(m, dtype=np.bool_)           # the vertices that take the Jacobi mean
     for v in range(m):
         c = _skin_clearance(rest, body, points, v)[3]
-        on_plane[v] = _has_floor(planes, v) or -FOOT_LOST < c < near_skin
+        on_plane[v] = _has_floor(planes, v) or -foot_lost < c < near_skin
     for it in range(iterations):
         n_moved = 0
         n_jacobi = 0
@@ -409,7 +403,7 @@ def _strain_frame(rest, body, normals, points, w, limit, iterations, margin, cap
                 if not wv > 0.0:
                     continue
                 g = f * sa if end == 0 else -f * (1.0 - sa)
-                _move(rest, body, points, planes, margin, v, g * dx, g * dy, g * dz)
+                _move(rest, body, points, planes, margin, foot_lost, v, g * dx, g * dy, g * dz)
                 if moved_seen[v] != it:
                     moved_seen[v] = it
                     moved[n_moved] = v
@@ -468,7 +462,7 @@ def _strain_frame(rest, body, normals, points, w, limit, iterations, margin, cap
                     cnt += 1.0
             if not cnt > 0.0:
                 continue
-            _move(rest, body, points, planes, margin, v, sx / cnt, sy / cnt, sz / cnt)
+            _move(rest, body, points, planes, margin, foot_lost, v, sx / cnt, sy / cnt, sz / cnt)
             if moved_seen[v] != it:
                 moved_seen[v] = it
                 moved[n_moved] = v
