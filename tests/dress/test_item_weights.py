@@ -88,16 +88,19 @@ def test_articulated_weights_snap_the_skin_to_pieces_with_linear_hinges():
     w[1, [3, 4, 5]] = [0.05, 0.5, 0.45]  # toe cap: the toe segments summed, wholly the ball
     w[2, [3, 4]] = [0.5, 0.5]            # mid hinge
     w[3, [2, 3]] = [0.6, 0.4]            # collar: on the calf
-    w[4, [1, 3]] = [0.3, 0.7]            # thigh weight counts as the calf's
+    w[4, [1, 3]] = [0.3, 0.7]            # thigh weight counts in the calf's piece, and stays the thigh's
     out = articulated_weights(w, LEG_PARENTS, hinge=(0.1, 0.9))
     expect = np.zeros((5, 7))
     expect[0, 3] = 1.0
     expect[1, 4] = 1.0
     expect[2, [3, 4]] = [0.5, 0.5]
     expect[3, [2, 3]] = [0.625, 0.375]
-    expect[4, [2, 3]] = [0.25, 0.75]
+    expect[4, [1, 3]] = [0.25, 0.75]
     np.testing.assert_allclose(out, expect, atol=1e-12)
     assert [p.tolist() for p in articulated_pieces(np.tile(out, (3, 1)))] == [[0, 5, 10], [1, 6, 11]]
+    # the parent piece's share is spread over its joints as the skin spreads it
+    two = articulated_weights(np.array([[0.0, 0.3, 0.3, 0.4, 0.0, 0.0, 0.0]]), LEG_PARENTS, hinge=(0.1, 0.9))
+    np.testing.assert_allclose(two, [[0.0, 0.3125, 0.3125, 0.375, 0.0, 0.0, 0.0]], atol=1e-12)
     with pytest.raises(ValueError, match="hinge"):
         articulated_weights(w, LEG_PARENTS, hinge=(0.9, 0.1))
 
@@ -121,6 +124,32 @@ def test_with_parents_a_part_on_one_joint_is_articulated_too():
     expect[[0, 2], 3] = 1.0
     expect[1, [2, 3]] = [0.25, 0.75]
     np.testing.assert_allclose(art, expect, atol=1e-12)
+
+
+# a neck of two joints under the head: 0 root, 1 spine, 2 neck, 3 neck1, 4 head
+NECK_PARENTS = np.array([-1, 0, 1, 2, 3])
+
+
+def test_a_nape_wholly_on_the_neck_piece_follows_the_skin_under_it_on_a_two_joint_neck():
+    """Short hair on a CMU-style neck (Neck, Neck1, Head): the nape's skin
+    is 0.6 Neck and 0.4 Neck1. The nape vertex, wholly in the head's
+    parent piece, takes those proportions and is posed exactly where the
+    skin under it goes when the neck bends; on Neck1 alone (the parent
+    joint only, as before) it was centimetres off."""
+    skin = np.zeros((2, 5))
+    skin[0, 4] = 1.0                  # the crown, on the head
+    skin[1, [2, 3]] = [0.6, 0.4]      # the nape
+    art = articulated_weights(skin, NECK_PARENTS, hinge=(0.1, 0.9))
+    np.testing.assert_allclose(art, skin, atol=1e-12)
+    pts = np.array([[0.0, 0.0, 0.20], [0.0, -0.06, 0.05]])
+    mats = np.tile(np.eye(4), (5, 1, 1))
+    mats[2] = _rot([1, 0, 0], 0.5, np.zeros(3))      # the neck bends forward at its base
+    mats[3] = mats[2] @ _rot([1, 0, 0], 0.3, np.array([0.0, 0.0, 0.06]))
+    mats[4] = mats[3]
+    np.testing.assert_allclose(_skin(pts, art, mats), _skin(pts, skin, mats), atol=1e-12)
+    on_parent = np.zeros((2, 5))
+    on_parent[0, 4] = on_parent[1, 3] = 1.0
+    assert np.linalg.norm(_skin(pts, on_parent, mats)[1] - _skin(pts, skin, mats)[1]) > 0.01
 
 
 def _skin(points, weights, mats):

@@ -229,12 +229,15 @@ def articulated_weights(weights: np.ndarray, parents: np.ndarray, hinge: tuple |
     (a shoe's foot). Each vertex's weights are summed per piece
     (:func:`piece_joints`: j0, a direct child of j0 with its subtree, or
     j0's parent with the rest); a piece's sum ``s`` other than j0's becomes
-    ``clip((s - lo) / (hi - lo), 0, 1)`` (``hinge``) and j0 takes the rest.
-    Vertices away from the hinges are then on one joint: LBS moves each
-    piece by that joint's transform alone, rigidly, and the part bends at
-    the hinges only (a shoe at the toe joint and at the collar; the skin's
-    own weights, wider blends over calf, foot and toes, left its pieces
-    42-67 mm off any similarity transform in the CMU walk).
+    ``clip((s - lo) / (hi - lo), 0, 1)`` (``hinge``) and j0 takes the rest;
+    the parent piece's share is then spread over that piece's joints in the
+    proportions of the skin under the vertex. Vertices away from the hinges
+    are then on one joint (the parent piece's: on as many as the skin under
+    them): LBS moves each piece by that joint's transform alone, rigidly,
+    and the part bends at the hinges only (a shoe at the toe joint and at
+    the collar; the skin's own weights, wider blends over calf, foot and
+    toes, left its pieces 42-67 mm off any similarity transform in the CMU
+    walk).
 
     Parameters
     ----------
@@ -253,7 +256,9 @@ def articulated_weights(weights: np.ndarray, parents: np.ndarray, hinge: tuple |
     Returns
     -------
     (P, J) float64 weights, rows summing to 1, non-zero on j0, its direct
-    children and its parent only.
+    children and the joints of its parent's piece only (the parent piece's
+    share spread over them as the skin under the vertex spreads it: a
+    collar on the calf alone, a nape on the neck joints it lies on).
     """
     w = np.asarray(weights, dtype=np.float64)
     parents = np.asarray(parents, dtype=np.int64)
@@ -280,6 +285,20 @@ def articulated_weights(weights: np.ndarray, parents: np.ndarray, hinge: tuple |
     over = s > 1.0  # two pieces each over its hinge's start (a vertex between toes)
     out[over] /= s[over, None]
     out[:, j0] = 1.0 - out.sum(axis=1)
+    up = int(parents[j0])
+    if up >= 0:
+        # the parent's piece rides the joints the skin under it rides, in
+        # the skin's proportions: on a CMU-style neck (Neck, Neck1, Head) the
+        # nape's skin is 0.58 Neck and 0.36 Neck1, and short hair's nape on
+        # Neck1 alone sank 1-2.5 mm into it in the walk (skinned copy, 2.25 %
+        # new penetrations against the redress's 0 %, body_male_cmu_rig)
+        rest = piece == up
+        parts = w[:, rest]
+        total = parts.sum(axis=1)
+        # (rows on one joint of the piece keep theirs as they are, to the bit)
+        rows = np.flatnonzero((out[:, up] > 0.0) & (np.count_nonzero(parts, axis=1) > 1))
+        share = out[rows, up]
+        out[np.ix_(rows, np.flatnonzero(rest))] = share[:, None] * parts[rows] / total[rows, None]
     return out
 
 
