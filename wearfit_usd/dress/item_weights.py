@@ -292,13 +292,21 @@ def articulated_weights(weights: np.ndarray, parents: np.ndarray, hinge: tuple |
         # nape's skin is 0.58 Neck and 0.36 Neck1, and short hair's nape on
         # Neck1 alone sank 1-2.5 mm into it in the walk (skinned copy, 2.25 %
         # new penetrations against the redress's 0 %, body_male_cmu_rig)
-        rest = piece == up
-        parts = w[:, rest]
+        cols = np.flatnonzero(piece == up)
+        parts = w[:, cols]
         total = parts.sum(axis=1)
-        # (rows on one joint of the piece keep theirs as they are, to the bit)
-        rows = np.flatnonzero((out[:, up] > 0.0) & (np.count_nonzero(parts, axis=1) > 1))
+        count = np.count_nonzero(parts, axis=1)
+        carried = out[:, up] > 0.0
+        rows = np.flatnonzero(carried & (count > 1))
         share = out[rows, up]
-        out[np.ix_(rows, np.flatnonzero(rest))] = share[:, None] * parts[rows] / total[rows, None]
+        out[np.ix_(rows, cols)] = share[:, None] * parts[rows] / total[rows, None]
+        # a vertex on one joint of the piece: its share moved to that joint
+        # as it is (on the parent itself, the collar's calf, it stays put)
+        one = np.flatnonzero(carried & (count == 1))
+        j = cols[np.argmax(parts[one] > 0.0, axis=1)]
+        share = out[one, up].copy()
+        out[one, up] = 0.0
+        out[one, j] = share
     return out
 
 
