@@ -295,18 +295,12 @@ def articulated_weights(weights: np.ndarray, parents: np.ndarray, hinge: tuple |
         cols = np.flatnonzero(piece == up)
         parts = w[:, cols]
         total = parts.sum(axis=1)
-        count = np.count_nonzero(parts, axis=1)
-        carried = out[:, up] > 0.0
-        rows = np.flatnonzero(carried & (count > 1))
-        share = out[rows, up]
-        out[np.ix_(rows, cols)] = share[:, None] * parts[rows] / total[rows, None]
-        # a vertex on one joint of the piece: its share moved to that joint
-        # as it is (on the parent itself, the collar's calf, it stays put)
-        one = np.flatnonzero(carried & (count == 1))
-        j = cols[np.argmax(parts[one] > 0.0, axis=1)]
-        share = out[one, up].copy()
-        out[one, up] = 0.0
-        out[one, j] = share
+        rows = np.flatnonzero((out[:, up] > 0.0) & (total > 0.0))
+        # the fractions first: a vertex on one joint of the piece gets
+        # exactly 1.0 there, so its share moves whole to that joint (on the
+        # parent itself, the collar's calf, it stays put to the bit)
+        fraction = parts[rows] / total[rows, None]
+        out[np.ix_(rows, cols)] = out[rows, up][:, None] * fraction
     return out
 
 
