@@ -1,28 +1,29 @@
 """Skin weights for dressed items, derived from their K-triangle binding.
 
-An item vertex bound to K body triangles with blend weights ``w_k`` and local
-coordinates ``(a, b, c)`` (:class:`binding.Binding`) sits over the point
-``(1 - a - b) v1 + a v2 + b v3`` of each triangle. Its skin weights are the
-bound triangles' vertex weights blended by these coordinates (clamped to the
-triangle) times ``w_k ** BLEND_POWER`` (renormalised), so the item is skinned
-the way the skin under it is, the nearest triangles counting most. (With
-``w_k`` itself the blend reached across a joint's crease: a sleeve's
-underarm, over skin 0.88-1.0 on the upper arm, took 0.14-0.27 of the chest's
-weight from the torso's triangles across the armpit, and in the CMU run its
-skinned copy went 10-22 mm into the arm.) The strongest
-``max_influences`` (default 8) are kept and renormalised. Rigid parts (:mod:`rigid_parts`: shoes, hats,
-glasses, short hair) are *articulated* when the skeleton's ``parents`` are
-given (:func:`articulated_weights`): the part's principal joint (a shoe's
-foot) carries the vertices the skin under them gives mostly to it, a child
-joint (the toes) those it gives mostly to that child's subtree, the
-principal's parent (the calf) the collar, with linear hinges between
-(``HINGE``). The sole, the toe cap and the collar each move rigidly and the
-shoe bends at the joints only; a hat or glasses come out on the head alone,
-short hair with its nape on the neck. Without ``parents`` a part whose
-bound body patch follows one joint (``ONE_JOINT_SHARE`` of its weight) is
-skinned to that joint alone, and any other keeps the per-vertex weights of
-the skin under it, bending wherever the skin does (on the CMU walk a shoe's
-pieces were then 42-67 mm off any similarity transform in the worst frame).
+An item vertex bound to K body triangles with blend weights ``w_k`` and
+local coordinates ``(a, b, c)`` (:class:`binding.Binding`) sits over the
+point ``(1 - a - b) v1 + a v2 + b v3`` of each triangle. Its skin weights
+are the bound triangles' vertex weights blended by these coordinates
+(clamped to the triangle) times ``w_k ** BLEND_POWER`` (renormalised), so
+the item is skinned the way the skin under it is, the nearest triangles
+counting most. (With ``w_k`` itself the blend reached across a joint's
+crease: a sleeve's underarm, over skin 0.88-1.0 on the upper arm, took
+0.14-0.27 of the chest's weight from the torso's triangles across the
+armpit, and in the CMU run its skinned copy went 10-22 mm into the skin
+under the arm.) The strongest ``max_influences`` (default 8) are kept and
+renormalised. Rigid parts (:mod:`rigid_parts`: shoes, hats, glasses, short
+hair) are *articulated* when the skeleton's ``parents`` are given
+(:func:`articulated_weights`): the part's principal joint (a shoe's foot)
+carries the vertices the skin under them gives mostly to it, a child joint
+(the toes) those it gives mostly to that child's subtree, the principal's
+parent (the calf) the collar, with linear hinges between (``HINGE``). The
+sole, the toe cap and the collar each move rigidly and the shoe bends at the
+joints only; a hat or glasses come out on the head alone, short hair with
+its nape on the neck. Without ``parents`` a part whose bound body patch
+follows one joint (``ONE_JOINT_SHARE`` of its weight) is skinned to that
+joint alone, and any other keeps the per-vertex weights of the skin under
+it, bending wherever the skin does (on the CMU walk a shoe's pieces were
+then 42-67 mm off any similarity transform in the worst frame).
 
 Arrays are numpy; body weights are (N, K) joint indices and weights into a
 skeleton of ``n_joints`` joints, on the body topology the binding indexes.
