@@ -13,7 +13,9 @@ a similarity (issue 17's 2 mm; shoes and hats are written skinned in
 both, with articulated weights). The copies' rest points are fitted to
 example poses (:mod:`animate.skin_fit`), made once per reference and
 target for every clip. Quick: the CMU walk, the first 60 frames at 30 fps,
-measured every frame, on ref_male and ref_female x the 10 dev targets;
+measured every frame, on ref_male, ref_female and ref_female_longskirt (its
+skirt's skinned copy takes the legs' skin below the hips:
+:mod:`dress.skirt_weights`) x the 10 dev targets;
 full: every CMU clip (the first 60 frames of each), every 2nd frame.
 
 Run alone: ``python3 benchmarks/bench_skinned.py [--full]``.
@@ -29,7 +31,7 @@ if __package__ in (None, ""):
 
 from benchmarks import BVH_DIR, DEFAULT_OUT, USD_DIR, clip_end, format_table  # noqa: E402
 
-REFS = ("ref_male.usda", "ref_female.usda")
+REFS = ("ref_male.usda", "ref_female.usda", "ref_female_longskirt.usda")
 FRAMES = 60
 
 

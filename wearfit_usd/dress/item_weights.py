@@ -11,8 +11,9 @@ crease: a sleeve's underarm, over skin 0.88-1.0 on the upper arm, took
 0.14-0.27 of the chest's weight from the torso's triangles across the
 armpit, and in the CMU run its skinned copy went 10-22 mm into the skin
 under the arm.) The strongest ``max_influences`` (default 8) are kept and
-renormalised. Rigid parts (:mod:`rigid_parts`: shoes, hats, glasses, short
-hair) are *articulated* when the skeleton's ``parents`` are given
+renormalised. Skirt parts, bound to the hips, take the legs' skin weights
+below them (:mod:`skirt_weights`). Rigid parts (:mod:`rigid_parts`: shoes,
+hats, glasses, short hair) are *articulated* when the skeleton's ``parents`` are given
 (:func:`articulated_weights`): the part's principal joint (a shoe's foot)
 carries the vertices the skin under them gives mostly to it, a child joint
 (the toes) those it gives mostly to that child's subtree, the principal's
@@ -39,6 +40,7 @@ from ..geometry.mesh import edges as mesh_edges
 from ..geometry.mesh import same_topology
 from ..model import SKINNED_SUFFIX  # noqa: F401 (re-exported: the skinned copies' names)
 from .binding import Binding
+from .skirt_weights import LegSkin, hip_axes, skirt_weights
 
 MAX_INFLUENCES = 8
 #: a rigid group whose body patch has this share of one joint's weight is
@@ -395,7 +397,7 @@ def rigid_group_weights(dense: np.ndarray, group: tuple, body_w: sp.csr_matrix,
 def item_skin_weights(binding: Binding, body_joint_indices: np.ndarray, body_joint_weights: np.ndarray,
                       n_joints: int, rigid_groups: list | None = None,
                       max_influences: int = MAX_INFLUENCES, parents: np.ndarray | None = None,
-                      mesh: tuple | None = None):
+                      mesh: tuple | None = None, skirt: tuple | None = None):
     """Skin weights of every bound item vertex.
 
     Parameters
@@ -419,6 +421,10 @@ def item_skin_weights(binding: Binding, body_joint_indices: np.ndarray, body_joi
     mesh : ((M, 3) points, (E, 2) edges), optional
         The bound items' points and edges (:func:`item_mesh`): articulated
         parts then bend over ``HINGE_BAND`` of their surface.
+    skirt : ((M,) bool rows, hip axes, skirt_weights.LegSkin), optional
+        The skirt parts' rows (:meth:`plan.DressPlan.skirt_mask`), carried
+        from the hips to the legs (:func:`skirt_weights.skirt_weights`; needs
+        ``mesh``).
 
     Returns
     -------
@@ -435,6 +441,10 @@ def item_skin_weights(binding: Binding, body_joint_indices: np.ndarray, body_joi
         if groups and parents is not None else dense
     for group in groups:
         dense[np.asarray(group[0], dtype=np.int64)] = rigid_group_weights(skin, group, body_w, parents, mesh)
+    if skirt is not None and mesh is not None and skirt[0].any():
+        rows, axes, leg_skin = skirt
+        at = np.asarray(mesh[0])[rows]
+        dense[rows] = skirt_weights(dense[rows], at, axes, leg_skin.weights(at))
     return prune(dense, max_influences)
 
 
@@ -511,7 +521,8 @@ def skinned_items(result, target, suffix: str = "", max_influences: int = MAX_IN
     # released groups too: freed for the static fit (the shoe did not fit
     # this body rigidly), they are still rigid pieces in motion
     ji, jw = item_skin_weights(pl.binding, body_ji, body_jw, n_joints, pl.rigid_groups + pl.released_groups,
-                               max_influences, parents=target.skeleton.parents, mesh=item_mesh(result.items))
+                               max_influences, parents=target.skeleton.parents, mesh=item_mesh(result.items),
+                               skirt=_skirt(result, target, body_ji, body_jw))
     out = []
     for item, sl in zip(result.items, pl.item_slices()):
         m = item.copy_with_points(item.points)
@@ -519,6 +530,19 @@ def skinned_items(result, target, suffix: str = "", max_influences: int = MAX_IN
         m.joint_indices, m.joint_weights = ji[sl], jw[sl]
         out.append(m)
     return out
+
+
+def _skirt(result, target, body_ji: np.ndarray, body_jw: np.ndarray) -> tuple | None:
+    """The skirt parts of a dressing and what :func:`skirt_weights.skirt_weights`
+    needs for them on the target, or None (no skirt parts, or no two legs)."""
+    rows = result.plan.skirt_mask(parts=True)
+    if not rows.any():
+        return None
+    axes = hip_axes(target.skeleton)
+    if axes is None:
+        return None
+    body_w = weight_matrix(body_ji, body_jw, target.skeleton.n_joints)
+    return rows, axes, LegSkin(result.body_points, result.plan.binding.faces, body_w, target.skeleton)
 
 
 def rigid_pieces(result, target) -> list:
