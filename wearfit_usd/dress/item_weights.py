@@ -11,8 +11,8 @@ crease: a sleeve's underarm, over skin 0.88-1.0 on the upper arm, took
 0.14-0.27 of the chest's weight from the torso's triangles across the
 armpit, and in the CMU run its skinned copy went 10-22 mm into the skin
 under the arm.) The strongest ``max_influences`` (default 8) are kept and
-renormalised. Skirt parts, bound to the hips, take the legs' skin weights
-below them (:mod:`skirt_weights`). Rigid parts (:mod:`rigid_parts`: shoes,
+renormalised. Skirt parts, bound to the hips, take the skin weights of the
+torso and leg on their side (:mod:`skirt_weights`). Rigid parts (:mod:`rigid_parts`: shoes,
 hats, glasses, short hair) are *articulated* when the skeleton's ``parents`` are given
 (:func:`articulated_weights`): the part's principal joint (a shoe's foot)
 carries the vertices the skin under them gives mostly to it, a child joint
@@ -421,10 +421,10 @@ def item_skin_weights(binding: Binding, body_joint_indices: np.ndarray, body_joi
     mesh : ((M, 3) points, (E, 2) edges), optional
         The bound items' points and edges (:func:`item_mesh`): articulated
         parts then bend over ``HINGE_BAND`` of their surface.
-    skirt : ((M,) bool rows, hip axes, skirt_weights.LegSkin), optional
-        The skirt parts' rows (:meth:`plan.DressPlan.skirt_mask`), carried
-        from the hips to the legs (:func:`skirt_weights.skirt_weights`; needs
-        ``mesh``).
+    skirt : ((M,) bool rows, skirt_weights.Hips, skirt_weights.LegSkin), optional
+        The skirt parts' rows (:meth:`plan.DressPlan.skirt_mask`): each side
+        the skin of the torso and leg on its side (:func:`skirt_weights.skirt_weights`;
+        needs ``mesh``).
 
     Returns
     -------
@@ -444,7 +444,7 @@ def item_skin_weights(binding: Binding, body_joint_indices: np.ndarray, body_joi
     if skirt is not None and mesh is not None and skirt[0].any():
         rows, axes, leg_skin = skirt
         at = np.asarray(mesh[0])[rows]
-        dense[rows] = skirt_weights(dense[rows], at, axes, leg_skin.weights(at))
+        dense[rows] = skirt_weights(dense[rows], at, axes, *leg_skin.weights(at))
     return prune(dense, max_influences)
 
 

@@ -43,7 +43,7 @@ def _branch(parents: np.ndarray, a: int, b: int) -> int:
     return path[-1]
 
 
-def _subtree(parents: np.ndarray, root: int) -> np.ndarray:
+def subtree(parents: np.ndarray, root: int) -> np.ndarray:
     inside = np.zeros(len(parents), dtype=bool)
     inside[root] = True
     for j in range(len(parents)):  # parents[j] < j: one ordered sweep
@@ -83,11 +83,11 @@ def joint_regions(skeleton) -> np.ndarray:
     for joint, other, lab in ((lfoot, rfoot, LEFT_LEG), (rfoot, lfoot, RIGHT_LEG),
                               (lhand, rhand, LEFT_ARM), (rhand, lhand, RIGHT_ARM)):
         root = _branch(parents, joint, other)
-        sub = _subtree(parents, root)
+        sub = subtree(parents, root)
         labels[sub & (labels == TORSO)] = lab
     if labels[top] == TORSO:
         root = _branch(parents, top, lhand)
-        sub = _subtree(parents, root)
+        sub = subtree(parents, root)
         labels[sub & (labels == TORSO)] = HEAD
     return labels
 
