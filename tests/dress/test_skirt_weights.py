@@ -11,7 +11,7 @@ import pytest
 from tests.conftest import BVH_DIR, USD_DIR
 from wearfit_usd.dress.item_weights import weight_matrix
 from wearfit_usd.dress.regions import LEFT_LEG, RIGHT_LEG, TORSO, joint_regions
-from wearfit_usd.dress.skirt_weights import Hips, LegSkin, hip_axes, skirt_weights
+from wearfit_usd.dress.skirt_weights import Hips, LegSkin, has_leg_skin, hip_axes, skirt_weights
 from wearfit_usd.model import Skeleton
 
 # hip joints at x = +-0.1 (joints 1 and 2), the thighs straight down: u = x
@@ -164,6 +164,13 @@ def test_leg_skin_reads_each_sides_skin(ref_female):
     assert wh[0][sk.index("pelvis")] > 0.3 and wh[0][sk.index("thigh_l")] > 0.3   # the hip's skin: both
     with pytest.raises(ValueError, match="vertices"):
         LegSkin(body.points[:-1], body.faces, bw, sk)
+    # a body whose skin holds no leg (every weight on the pelvis): no LegSkin,
+    # and skinned_items keeps the skirt on its binding's weights
+    pelvis = weight_matrix(np.full((body.n_points, 1), sk.index("pelvis")), np.ones((body.n_points, 1)),
+                           sk.n_joints)
+    assert has_leg_skin(bw, sk) and not has_leg_skin(pelvis, sk)
+    with pytest.raises(ValueError, match="leg"):
+        LegSkin(body.points, body.faces, pelvis, sk)
 
 
 @pytest.mark.slow

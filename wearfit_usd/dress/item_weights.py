@@ -40,7 +40,7 @@ from ..geometry.mesh import edges as mesh_edges
 from ..geometry.mesh import same_topology
 from ..model import SKINNED_SUFFIX  # noqa: F401 (re-exported: the skinned copies' names)
 from .binding import Binding
-from .skirt_weights import LegSkin, hip_axes, skirt_weights
+from .skirt_weights import LegSkin, has_leg_skin, hip_axes, skirt_weights
 
 MAX_INFLUENCES = 8
 #: a rigid group whose body patch has this share of one joint's weight is
@@ -534,7 +534,8 @@ def skinned_items(result, target, suffix: str = "", max_influences: int = MAX_IN
 
 def _skirt(result, target, body_ji: np.ndarray, body_jw: np.ndarray) -> tuple | None:
     """The skirt parts of a dressing and what :func:`skirt_weights.skirt_weights`
-    needs for them on the target, or None (no skirt parts, or no two legs)."""
+    needs for them on the target, or None (no skirt parts, no two legs in the
+    skeleton or no skin on them: the skirt then keeps its binding's weights)."""
     rows = result.plan.skirt_mask(parts=True)
     if not rows.any():
         return None
@@ -542,6 +543,8 @@ def _skirt(result, target, body_ji: np.ndarray, body_jw: np.ndarray) -> tuple | 
     if axes is None:
         return None
     body_w = weight_matrix(body_ji, body_jw, target.skeleton.n_joints)
+    if not has_leg_skin(body_w, target.skeleton):
+        return None
     return rows, axes, LegSkin(result.body_points, result.plan.binding.faces, body_w, target.skeleton)
 
 

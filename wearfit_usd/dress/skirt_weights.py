@@ -150,6 +150,21 @@ def hip_axes(skeleton) -> Hips | None:
                 np.array([subtree(parents, k) for k in knees]))
 
 
+def _vertex_regions(body_w: sp.csr_matrix, skeleton) -> np.ndarray:
+    """(N,) region of each body vertex: the one whose joints carry most of its weight."""
+    jl = joint_regions(skeleton)
+    share = (body_w @ sp.csr_matrix((np.ones(len(jl)), (np.arange(len(jl)), jl)),
+                                    shape=(len(jl), N_REGIONS))).toarray()
+    return np.argmax(share, axis=1)
+
+
+def has_leg_skin(body_w: sp.csr_matrix, skeleton) -> bool:
+    """Whether both legs hold most of the weight of some body vertices (a
+    :class:`LegSkin` can be built)."""
+    vr = _vertex_regions(body_w, skeleton)
+    return bool((vr == LEFT_LEG).any() and (vr == RIGHT_LEG).any())
+
+
 class LegSkin:
     """The skin weights of each side's surface (the torso and one leg),
     queried at its closest point.
@@ -175,10 +190,7 @@ class LegSkin:
         faces = np.asarray(faces, dtype=np.int64)
         if body_w.shape[0] != len(points):
             raise ValueError(f"body weights for {body_w.shape[0]} vertices, body of {len(points)}")
-        jl = joint_regions(skeleton)
-        share = (body_w @ sp.csr_matrix((np.ones(len(jl)), (np.arange(len(jl)), jl)),
-                                        shape=(len(jl), N_REGIONS))).toarray()
-        tri = triangle_regions(faces, np.argmax(share, axis=1))
+        tri = triangle_regions(faces, _vertex_regions(body_w, skeleton))
         self.body_w = body_w.tocsr()
         self.sides = []
         for lab in (LEFT_LEG, RIGHT_LEG):
