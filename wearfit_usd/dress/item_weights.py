@@ -12,10 +12,11 @@ crease: a sleeve's underarm, over skin 0.88-1.0 on the upper arm, took
 armpit, and in the CMU run its skinned copy went 10-22 mm into the skin
 under the arm.) The strongest ``max_influences`` (default 8) are kept and
 renormalised. Skirt parts, bound to the hips, take the skin weights of the
-torso and leg on their side (:mod:`skirt_weights`). Rigid parts (:mod:`rigid_parts`: shoes,
-hats, glasses, short hair) are *articulated* when the skeleton's ``parents`` are given
-(:func:`articulated_weights`): the part's principal joint (a shoe's foot)
-carries the vertices the skin under them gives mostly to it, a child joint
+torso and leg on their side (:mod:`skirt_weights`). Rigid parts
+(:mod:`rigid_parts`: shoes, hats, glasses, short hair) are *articulated*
+when the skeleton's ``parents`` are given (:func:`articulated_weights`):
+the part's principal joint (a shoe's foot) carries the vertices the skin
+under them gives mostly to it, a child joint
 (the toes) those it gives mostly to that child's subtree, the principal's
 parent (the calf) the collar, with linear hinges between (``HINGE``). The
 sole, the toe cap and the collar each move rigidly and the shoe bends at the

@@ -44,6 +44,7 @@ def _branch(parents: np.ndarray, a: int, b: int) -> int:
 
 
 def subtree(parents: np.ndarray, root: int) -> np.ndarray:
+    """(J,) bool: ``root`` and every joint below it (``parents[j] < j``)."""
     inside = np.zeros(len(parents), dtype=bool)
     inside[root] = True
     for j in range(len(parents)):  # parents[j] < j: one ordered sweep
