@@ -10,7 +10,7 @@ import pytest
 
 from tests.conftest import BVH_DIR, USD_DIR
 from wearfit_usd.dress.item_weights import weight_matrix
-from wearfit_usd.dress.regions import LEFT_LEG, RIGHT_LEG, TORSO, joint_regions
+from wearfit_usd.dress.regions import LEFT_LEG, RIGHT_LEG, TORSO, joint_regions, vertex_regions, weight_region_shares
 from wearfit_usd.dress.skirt_weights import Hips, LegSkin, has_leg_skin, hip_axes, skirt_weights
 from wearfit_usd.model import Skeleton
 
@@ -148,7 +148,8 @@ def test_leg_skin_reads_each_sides_skin(ref_female):
     # left hip the torso's and the thigh's, never the other leg's
     body, sk = ref_female.body, ref_female.skeleton
     bw = weight_matrix(body.joint_indices, body.joint_weights, sk.n_joints)
-    legs = LegSkin(body.points, body.faces, bw, sk)
+    labels = vertex_regions(body, sk)
+    legs = LegSkin(body.points, body.faces, bw, labels)
     knee = sk.bind_positions()[[sk.index("calf_l"), sk.index("calf_r")]]
     q = knee + np.array([0.0, 0.0, 0.15])   # in front of each knee
     (wl, wr), (dl, dr) = legs.weights(q)
@@ -163,14 +164,14 @@ def test_leg_skin_reads_each_sides_skin(ref_female):
     assert wh[0][jl == RIGHT_LEG].sum() == 0.0 and wh[0][(jl == TORSO) | (jl == LEFT_LEG)].sum() > 0.99
     assert wh[0][sk.index("pelvis")] > 0.3 and wh[0][sk.index("thigh_l")] > 0.3   # the hip's skin: both
     with pytest.raises(ValueError, match="vertices"):
-        LegSkin(body.points[:-1], body.faces, bw, sk)
+        LegSkin(body.points[:-1], body.faces, bw, labels)
     # a body whose skin holds no leg (every weight on the pelvis): no LegSkin,
     # and skinned_items keeps the skirt on its binding's weights
-    pelvis = weight_matrix(np.full((body.n_points, 1), sk.index("pelvis")), np.ones((body.n_points, 1)),
-                           sk.n_joints)
-    assert has_leg_skin(bw, sk) and not has_leg_skin(pelvis, sk)
+    pi, pw = np.full((body.n_points, 1), sk.index("pelvis")), np.ones((body.n_points, 1))
+    pelvis, pelvis_labels = weight_matrix(pi, pw, sk.n_joints), np.argmax(weight_region_shares(pi, pw, sk), axis=1)
+    assert has_leg_skin(labels) and not has_leg_skin(pelvis_labels)
     with pytest.raises(ValueError, match="leg"):
-        LegSkin(body.points, body.faces, pelvis, sk)
+        LegSkin(body.points, body.faces, pelvis, pelvis_labels)
 
 
 @pytest.mark.slow

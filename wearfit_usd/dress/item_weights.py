@@ -41,6 +41,7 @@ from ..geometry.mesh import edges as mesh_edges
 from ..geometry.mesh import same_topology
 from ..model import SKINNED_SUFFIX  # noqa: F401 (re-exported: the skinned copies' names)
 from .binding import Binding
+from .regions import weight_region_shares
 from .skirt_weights import LegSkin, has_leg_skin, hip_axes, skirt_weights
 
 MAX_INFLUENCES = 8
@@ -543,10 +544,11 @@ def _skirt(result, target, body_ji: np.ndarray, body_jw: np.ndarray) -> tuple | 
     axes = hip_axes(target.skeleton)
     if axes is None:
         return None
-    body_w = weight_matrix(body_ji, body_jw, target.skeleton.n_joints)
-    if not has_leg_skin(body_w, target.skeleton):
+    labels = np.argmax(weight_region_shares(body_ji, body_jw, target.skeleton), axis=1)
+    if not has_leg_skin(labels):
         return None
-    return rows, axes, LegSkin(result.body_points, result.plan.binding.faces, body_w, target.skeleton)
+    body_w = weight_matrix(body_ji, body_jw, target.skeleton.n_joints)
+    return rows, axes, LegSkin(result.body_points, result.plan.binding.faces, body_w, labels)
 
 
 def rigid_pieces(result, target) -> list:

@@ -97,12 +97,17 @@ def region_shares(mesh, skeleton) -> np.ndarray:
     """(N, N_REGIONS) share of each vertex's skin weight held by each region."""
     if mesh.joint_indices is None or skeleton is None:
         raise ValueError(f"mesh {mesh.name} has no skin weights: cannot segment it")
+    return weight_region_shares(mesh.joint_indices, mesh.joint_weights, skeleton)
+
+
+def weight_region_shares(joint_indices: np.ndarray, joint_weights: np.ndarray, skeleton) -> np.ndarray:
+    """(N, N_REGIONS) share of each vertex's skin weight held by each region,
+    from (N, K) joint indices and weights into ``skeleton``'s joints."""
     jl = joint_regions(skeleton)
-    n = mesh.n_points
-    acc = np.zeros((n, N_REGIONS))
-    lab = jl[mesh.joint_indices]  # (N, K)
-    rows = np.repeat(np.arange(n), lab.shape[1])
-    np.add.at(acc, (rows, lab.ravel()), mesh.joint_weights.ravel())
+    lab = jl[np.asarray(joint_indices)]  # (N, K)
+    acc = np.zeros((len(lab), N_REGIONS))
+    rows = np.repeat(np.arange(len(lab)), lab.shape[1])
+    np.add.at(acc, (rows, lab.ravel()), np.asarray(joint_weights).ravel())
     return acc
 
 

@@ -81,7 +81,8 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..geometry.closest import SurfaceQuery
-from .regions import LEFT_LEG, N_REGIONS, RIGHT_LEG, TORSO, joint_regions, subtree, triangle_regions
+from .corrections import smoothstep
+from .regions import LEFT_LEG, RIGHT_LEG, TORSO, joint_regions, subtree, triangle_regions
 
 #: the left side's part is smoothstep(1/2 + SIDE_GAIN u): at 2 the skirt is
 #: wholly on one side's skin from halfway to the hip joint outward
@@ -150,26 +151,18 @@ def hip_axes(skeleton) -> Hips | None:
                 np.array([subtree(parents, k) for k in knees]))
 
 
-def _vertex_regions(body_w: sp.csr_matrix, skeleton) -> np.ndarray:
-    """(N,) region of each body vertex: the one whose joints carry most of its weight."""
-    jl = joint_regions(skeleton)
-    share = (body_w @ sp.csr_matrix((np.ones(len(jl)), (np.arange(len(jl)), jl)),
-                                    shape=(len(jl), N_REGIONS))).toarray()
-    return np.argmax(share, axis=1)
-
-
-def has_leg_skin(body_w: sp.csr_matrix, skeleton) -> bool:
-    """Whether both legs hold most of the weight of some body vertices (a
-    :class:`LegSkin` can be built)."""
-    vr = _vertex_regions(body_w, skeleton)
-    return bool((vr == LEFT_LEG).any() and (vr == RIGHT_LEG).any())
+def has_leg_skin(labels: np.ndarray) -> bool:
+    """Whether both legs hold most of the weight of some body vertices,
+    (N,) ``labels`` their regions (:func:`regions.vertex_regions`): a
+    :class:`LegSkin` can be built."""
+    return bool((labels == LEFT_LEG).any() and (labels == RIGHT_LEG).any())
 
 
 class LegSkin:
     """The skin weights of each side's surface (the torso and one leg),
     queried at its closest point.
 
-    Built once per body: ``LegSkin(points, faces, body_w, skeleton)``, then
+    Built once per body: ``LegSkin(points, faces, body_w, labels)``, then
     ``leg_skin.weights(query)`` -> ``((W_left, W_right), (d_left, d_right))``.
 
     Parameters
@@ -179,18 +172,20 @@ class LegSkin:
     faces : (T, 3) int array
     body_w : (N, J) scipy.sparse matrix
         The body's skin weights (:func:`item_weights.weight_matrix`).
-    skeleton : model.Skeleton
-        Its joints' regions (:func:`regions.joint_regions`) say which
-        triangles are torso and which each leg (their vertices' weight
-        mostly that region's joints).
+    labels : (N,) int array
+        Each body vertex's region (:func:`regions.vertex_regions`: the one
+        whose joints carry most of its weight): they say which triangles are
+        torso and which each leg.
     """
 
-    def __init__(self, points: np.ndarray, faces: np.ndarray, body_w: sp.csr_matrix, skeleton):
+    def __init__(self, points: np.ndarray, faces: np.ndarray, body_w: sp.csr_matrix, labels: np.ndarray):
         points = np.asarray(points, dtype=np.float64)
         faces = np.asarray(faces, dtype=np.int64)
         if body_w.shape[0] != len(points):
             raise ValueError(f"body weights for {body_w.shape[0]} vertices, body of {len(points)}")
-        tri = triangle_regions(faces, _vertex_regions(body_w, skeleton))
+        if len(labels) != len(points):
+            raise ValueError(f"region labels for {len(labels)} vertices, body of {len(points)}")
+        tri = triangle_regions(faces, np.asarray(labels))
         self.body_w = body_w.tocsr()
         self.sides = []
         for lab in (LEFT_LEG, RIGHT_LEG):
@@ -255,11 +250,11 @@ def skirt_weights(hip_weights: np.ndarray, points: np.ndarray, hips: Hips, side_
         raise ValueError(f"skirt parameters side_gain {side_gain}, reach {reach}, swing_min {swing_min}, "
                          f"far {far}, far_hips {far_hips}: expected positive, far[0] < far[1], far_hips in [0, 1]")
     rel = p - hips.middle
-    left = _smoothstep(0.5 + side_gain * rel @ hips.lateral / float(hips.lateral @ hips.lateral))
+    left = smoothstep(0.5 + side_gain * rel @ hips.lateral / float(hips.lateral @ hips.lateral))
     swing = np.maximum(reach * (rel @ hips.down), swing_min)
     farness = []
     for w, d, thigh, below in zip(sides, dists, hips.thighs, hips.below_knee):
-        c = _smoothstep((d / swing - far[0]) / (far[1] - far[0]))
+        c = smoothstep((d / swing - far[0]) / (far[1] - far[0]))
         moved = w[:, below].sum(axis=1) * c   # far from the leg: the knee's bend does not reach it
         w[:, below] *= (1.0 - c)[:, None]
         w[:, thigh] += moved
@@ -268,8 +263,3 @@ def skirt_weights(hip_weights: np.ndarray, points: np.ndarray, hips: Hips, side_
     k = far_hips * (left * farness[0] + (1.0 - left) * farness[1])
     out = (1.0 - k)[:, None] * out + k[:, None] * w0
     return out / np.maximum(out.sum(axis=1, keepdims=True), 1e-12)
-
-
-def _smoothstep(x: np.ndarray) -> np.ndarray:
-    x = np.clip(x, 0.0, 1.0)
-    return x * x * (3.0 - 2.0 * x)
