@@ -8,7 +8,8 @@ the weights of the K-triangle binding). The shot's report measures both
 against the same static dress (the skinned copies by our LBS, equal to
 UsdSkel's). Per reference x dev target x clip and item: the worst frame's
 new penetrations of the two, their difference (issue 19's limit: within 1
-percentage point), the separation p95 and the rigid parts' distance from
+percentage point), the stretch p99 and coverage loss (a skinned skirt's
+web between the legs), the separation p95 and the rigid parts' distance from
 a similarity (issue 17's 2 mm; shoes and hats are written skinned in
 both, with articulated weights). The copies' rest points are fitted to
 example poses (:mod:`animate.skin_fit`), made once per reference and
@@ -77,6 +78,10 @@ def run(full: bool, out_dir: Path, measure_every: int | None = None) -> list[dic
                                  "within_1pp": bool(pb - pa <= 1.0),
                                  "redress_sep_p95_mm": _r(a["separation_p95_mm"]["value"]),
                                  "skinned_sep_p95_mm": _r(b["separation_p95_mm"]["value"]),
+                                 "redress_stretch_p99": _r(a["stretch_p99"]["value"]),
+                                 "skinned_stretch_p99": _r(b["stretch_p99"]["value"]),
+                                 "redress_coverage_loss_pct": _r(a["coverage_loss_pct"]["value"]),
+                                 "skinned_coverage_loss_pct": _r(b["coverage_loss_pct"]["value"]),
                                  "redress_rigid_mm": _r(a["rigid_mm"]["value"]),
                                  "skinned_rigid_mm": _r(b["rigid_mm"]["value"]),
                                  "shot_seconds": round(secs, 1), "example_poses_seconds": round(examples_s, 1)})
