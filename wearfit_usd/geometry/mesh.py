@@ -158,19 +158,22 @@ def best_rotation(h: Matrix3) -> tuple[Matrix3, NDArray[np.float64]]:
     Parameters
     ----------
     h : (3, 3) weighted cross-covariance ``sum_i w_i a_i^T b_i`` of the
-        (centred or not) source rows ``a`` and destination rows ``b``.
+        (centred or not) source rows ``a`` and destination rows ``b``; or
+        (n, 3, 3), n of them at once.
 
     Returns
     -------
-    rot : (3, 3) row-vector rotation (det +1) minimising
-        ``sum_i w_i |a_i @ rot - b_i|^2``; sv : (3,) singular values of
-        ``h``, the last one negated when a reflection was turned into a
-        rotation (their sum over the source variance is the Umeyama scale).
+    rot : (3, 3) (or (n, 3, 3)) row-vector rotation (det +1) minimising
+        ``sum_i w_i |a_i @ rot - b_i|^2``; sv : (3,) (or (n, 3)) singular
+        values of ``h``, the last one negated when a reflection was turned
+        into a rotation (their sum over the source variance is the Umeyama
+        scale).
     """
     u, sv, vt = np.linalg.svd(h)
     d = np.sign(np.linalg.det(u @ vt))
-    dm = np.array([1.0, 1.0, d])
-    return (u * dm) @ vt, sv * dm
+    dm = np.ones(sv.shape)
+    dm[..., 2] = d
+    return (u * dm[..., None, :]) @ vt, sv * dm
 
 
 def nondegenerate(points: Points, faces: Faces, rel: float = DEGENERATE_REL) -> Mask:
