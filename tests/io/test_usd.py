@@ -237,3 +237,67 @@ def test_ngon_item_round_trip_with_uvs_and_orientation(tmp_path, ref_male):
     assert st.interpolation == "faceVarying"
     np.testing.assert_allclose(st.values, uv.values)
     np.testing.assert_array_equal(st.indices, uv.indices)
+
+
+def test_shot_writer_appends_item_joints_that_usdskel_poses(tmp_path, ref_male):
+    """A skeleton with two item joints appended (animate.item_joints): the
+    body's animation comes in blocks, the item joints' per frame; UsdSkel
+    poses a mesh skinned to them as our LBS does with the appended
+    skinning matrices; a frame without its item joints leaves no file."""
+    from pxr import Usd
+
+    from wearfit_usd.animate.item_joints import ItemJoints, extend_skeleton
+    from wearfit_usd.motion.skinning import Skinner, skinning_matrices
+    rng = np.random.default_rng(5)
+    skel = ref_male.skeleton
+    n, j = 4, skel.n_joints
+    local = _anim(skel, n, rng)
+    world = skel.world_from_local(local)
+    item = ref_male.items[0]
+    parents = np.array([0, skel.n_joints - 1])
+    bind = skel.bind_world[parents].copy()
+    bind[:, 3, :3] = item.points[:2]
+    joints = ItemJoints(["cloth_a", "cloth_b"], [item.name] * 2, parents, bind, j)
+    skinned = item.copy_with_points(item.points)
+    skinned.name = "skinned_copy"
+    half = (np.arange(item.n_points) % 2).astype(float)
+    skinned.joint_indices = np.stack([np.full(item.n_points, j), np.full(item.n_points, j + 1),
+                                      np.zeros(item.n_points, int)], axis=1)
+    skinned.joint_weights = np.stack([0.5 * half, 0.5 * (1 - half), np.full(item.n_points, 0.5)], axis=1)
+    deltas = np.tile(np.eye(4), (n, 2, 1, 1))
+    deltas[:, :, 3, :3] = rng.normal(0, 0.05, (n, 2, 3))
+    out = tmp_path / "joints.usda"
+    with ShotWriter(out, ref_male, [], fps=24, n_frames=n, skinned_items=[skinned],
+                    skeleton=extend_skeleton(skel, joints)) as w:
+        w.write_animation(local[:2], first_frame=0)
+        w.write_animation(local[2:], first_frame=2)
+        for f in range(n):
+            w.write_item_joints(f, joints.world(deltas[f]))
+            w.write_frame(f, [])
+    stage = Usd.Stage.Open(str(out))
+    assert validate_stage(stage) == []
+    back = read_character(out)
+    assert back.skeleton.n_joints == j + 2 and back.skeleton.joint_names[-2:] == ["cloth_a", "cloth_b"]
+    lbs = Skinner(skinned.points, skinned.joint_indices, skinned.joint_weights, j + 2)
+    for f in (1, 3):
+        mats = np.concatenate([skinning_matrices(skel.bind_world, world[f]), deltas[f]])
+        ref = transform_points(usdskel_skinned_points(stage, "/Root/Character/skinned_copy", f), back.to_internal)
+        assert np.abs(ref - lbs(mats)).max() < 1e-4
+    bad = tmp_path / "missing.usda"
+    with pytest.raises(ValueError, match="item joints never written"):
+        with ShotWriter(bad, ref_male, [], fps=24, n_frames=2, skinned_items=[skinned],
+                        skeleton=extend_skeleton(skel, joints)) as w:
+            w.write_animation(local[:2])
+            w.write_item_joints(0, joints.world(deltas[0]))
+            for f in range(2):
+                w.write_frame(f, [])
+    assert not bad.exists()
+    with pytest.raises(ValueError, match="joints appended"):
+        ShotWriter(tmp_path / "x.usda", ref_male, [], fps=24, n_frames=1, skeleton=ref_female_like(skel))
+    assert not (tmp_path / "x.usda").exists()
+
+
+def ref_female_like(skel):
+    """A skeleton whose first joints are not ``skel``'s."""
+    from wearfit_usd.model import Skeleton
+    return Skeleton(skel.joint_names[::-1], skel.joint_paths[::-1], skel.parents, skel.bind_world, skel.rest_local)

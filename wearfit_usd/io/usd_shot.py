@@ -60,7 +60,10 @@ class ShotWriter:
     0..n_frames-1. ``skinned_items``: items with joint influences written as
     skinned meshes in the SkelRoot instead of point caches. ``carry_plan``:
     the inputs' materials, primvars, subsets and attributes carried onto the
-    written meshes (:mod:`.usd_carry`).
+    written meshes (:mod:`.usd_carry`). ``skeleton``: the skeleton to write
+    when it is the target's with joints appended (the items' own joints,
+    :mod:`animate.item_joints`); their transforms come per frame through
+    :meth:`write_item_joints`, the body's through :meth:`write_animation`.
 
     Use as a context manager; nothing appears at ``path`` unless the block
     completes (temporary file + rename).
@@ -69,20 +72,21 @@ class ShotWriter:
     def __init__(self, path, target: Character, items: list[Mesh], fps: float, n_frames: int,
                  clip_frames: int | None = None, velocities: bool = False,
                  skinned_items: list[Mesh] | None = None, up_axis: str | None = None,
-                 meters_per_unit: float | None = None, carry_plan: CarryPlan | None = None):
+                 meters_per_unit: float | None = None, carry_plan: CarryPlan | None = None,
+                 skeleton=None):
         self._tmp = None
         self._clip_dir_tmp = None
         self.stage = None
         self._clip_stage = None
         try:
             self._start(path, target, items, fps, n_frames, clip_frames, velocities, skinned_items,
-                        up_axis, meters_per_unit, carry_plan)
+                        up_axis, meters_per_unit, carry_plan, skeleton)
         except BaseException:
             self.abort()
             raise
 
     def _start(self, path, target, items, fps, n_frames, clip_frames, velocities, skinned_items,
-               up_axis, meters_per_unit, carry_plan=None):
+               up_axis, meters_per_unit, carry_plan=None, skeleton=None):
         from pxr import Usd, UsdGeom, UsdSkel
         self.path = Path(path)
         self.fps = float(fps)
@@ -92,6 +96,7 @@ class ShotWriter:
         self.clip_frames = int(clip_frames) if clip_frames else None
         self.target = target
         self._written = np.zeros(self.n_frames, dtype=bool)
+        self._anim_written = np.zeros(self.n_frames, dtype=bool)
         if self.clip_frames is not None and self.clip_frames < 1:
             raise ValueError(f"clip_frames must be >= 1, got {clip_frames}")
         self._clip_dir_final = self.path.parent / f"{self.path.stem}.clips"
@@ -116,8 +121,16 @@ class ShotWriter:
         self.layout = StageLayout(self.stage, up, mpu)
         UsdSkel.Root.Define(self.stage, self.layout.skel_root)
         self._skel_out = None
-        if target.skeleton is not None:
-            _, self._skel_out = author_skeleton(self.layout, target.skeleton)
+        self._written_skel = target.skeleton
+        if skeleton is not None:
+            body = target.skeleton
+            if (body is None or skeleton.n_joints < body.n_joints
+                    or list(skeleton.joint_paths[:body.n_joints]) != list(body.joint_paths)):
+                raise ValueError("the skeleton to write must be the target's with joints appended")
+            self._written_skel = skeleton
+        self._pending = {}  # frame -> body joints' world transforms awaiting the item joints'
+        if self._written_skel is not None:
+            _, self._skel_out = author_skeleton(self.layout, self._written_skel)
         author_body(self.layout, target.body, target.skeleton)
         UsdGeom.Xform.Define(self.stage, self.layout.items_path)
         self._item_prims = []
@@ -163,7 +176,6 @@ class ShotWriter:
         skeleton returns them (target skeleton space): every frame at once,
         or with ``first_frame`` a block of frames from that time code on
         (blocks may come in any order; together they must cover the shot)."""
-        from pxr import UsdSkel, Vt
         skel = self.target.skeleton
         if skel is None:
             raise ValueError("target has no skeleton: cannot write a SkelAnimation")
@@ -175,14 +187,38 @@ class ShotWriter:
         elif not 0 <= first_frame <= self.n_frames - local.shape[0]:
             raise ValueError(f"animation frames {first_frame}..{first_frame + local.shape[0] - 1} "
                              f"outside the shot's {self.n_frames}")
-        # re-express in the written skeleton's space (identity skeleton xform)
         world = skel.world_from_local(local)
+        if self._written_skel.n_joints > skel.n_joints:
+            # the items' joints come with the frame's redress (write_item_joints)
+            for f in range(local.shape[0]):
+                self._pending[first_frame + f] = world[f]
+            return
+        self._author_animation(world, first_frame)
+
+    def write_item_joints(self, frame: int, world: np.ndarray) -> None:
+        """Author frame ``frame`` of the SkelAnimation with the (n, 4, 4)
+        internal world transforms of the joints appended to the target's
+        skeleton (after :meth:`write_animation` gave the body's)."""
+        n = self._written_skel.n_joints - self.target.skeleton.n_joints
+        world = np.asarray(world, dtype=np.float64)
+        if n <= 0 or world.shape != (n, 4, 4):
+            raise ValueError(f"{world.shape} item joint transforms for {max(n, 0)} item joints")
+        if frame not in self._pending:
+            raise ValueError(f"item joints of frame {frame} before its body joints")
+        body = self._pending.pop(frame)
+        self._author_animation(np.concatenate([body, world])[None], frame)
+        self._anim_written[frame] = True
+
+    def _author_animation(self, world: np.ndarray, first_frame: int) -> None:
+        """Author (F, J_written, 4, 4) internal world joint transforms from time code ``first_frame`` on."""
+        from pxr import UsdSkel, Vt
+        # re-express in the written skeleton's space (identity skeleton xform)
         out_local = self._skel_out.local_from_world(world)
         t, r, s = decompose(out_local)
         q = quat_from_matrix(r)  # (F, J, 4) w,x,y,z
         if getattr(self, "_anim_attrs", None) is None:
             anim = UsdSkel.Animation.Define(self.stage, self.layout.anim_path)
-            anim.CreateJointsAttr(Vt.TokenArray(skel.joint_paths))
+            anim.CreateJointsAttr(Vt.TokenArray(self._written_skel.joint_paths))
             self._anim_attrs = (anim.CreateTranslationsAttr(), anim.CreateRotationsAttr(),
                                 anim.CreateScalesAttr())
             binding = UsdSkel.BindingAPI.Apply(self.stage.GetPrimAtPath(self.layout.skel_path))
@@ -190,7 +226,7 @@ class ShotWriter:
         ta, ra, sa = self._anim_attrs
         # Vt.QuatfArray.FromNumpy takes (imaginary i, j, k, real)
         qf = np.ascontiguousarray(q[..., [1, 2, 3, 0]].astype(np.float32))
-        for f in range(local.shape[0]):
+        for f in range(world.shape[0]):
             ta.Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(t[f], dtype=np.float32)), first_frame + f)
             ra.Set(Vt.QuatfArray.FromNumpy(qf[f]), first_frame + f)
             sa.Set(Vt.Vec3hArray.FromNumpy(np.ascontiguousarray(s[f], dtype=np.float16)), first_frame + f)
@@ -293,6 +329,10 @@ class ShotWriter:
         if not self._written.all():
             missing = np.flatnonzero(~self._written)
             raise ValueError(f"frames never written: {missing[:10].tolist()}")
+        if self._written_skel is not None and self.target.skeleton is not None and \
+                self._written_skel.n_joints > self.target.skeleton.n_joints and not self._anim_written.all():
+            missing = np.flatnonzero(~self._anim_written)
+            raise ValueError(f"item joints never written for frames {missing[:10].tolist()}")
         layer = self.stage.GetRootLayer()
         if self.clip_frames:
             # authored on the layer with no stage open on it: a stage would try
