@@ -54,6 +54,7 @@ from .cloth import ClothSolver, PushCarry
 from .contact_hold import ContactHold
 from .frame_eval import FrameEvaluator
 from .hem_span import SLACK, HemSpan, narrow_frames
+from .item_joints import JointFit, choose_items, extend_skeleton, plan_item_joints
 from .loose import cloth_weights
 from .measures import MEASURES, MotionMeasures, worst_frames
 from .penetration_guard import PenetrationGuard
@@ -93,6 +94,10 @@ class AnimateOptions:
     hidden_body: str = "none"          # "subset": name the covered body faces; "delete": drop them (hidden_body)
     skin_fit: bool = True              # bind mode, items skinned|both: the skinned copies' rest points fitted to
     #                                    example poses (skin_fit)
+    item_joints: bool = True           # bind mode with cloth, items skinned|both: the copies' loose parts on
+    #                                    joints of their own, animated from the cloth (item_joints)
+    compare_item_joints: bool = False  # also measure the copies on joints with the skin's weights instead (rows
+    #                                    "<item>_skinned_without_joints"; the benchmarks' baseline in the same shot)
     frame_sink: object = None          # skin_fit.FrameRecorder: gets every frame's matrices, body and items
     skin_examples: tuple | None = None  # skin_fit.training_frames of this reference and target, made once for
     #                                     several clips (None: made here when skin_fit needs them)
@@ -115,6 +120,7 @@ class AnimateReport:
     skinned_items: list = field(default_factory=list)  # names of the items written bound to the skeleton
     skinned_rigid_items: list = field(default_factory=list)  # rigid items and skin decals skinned (bind mode)
     skin_fit: dict = field(default_factory=dict)  # the skinned copies' fit (skin_fit): frames, moved mm
+    item_joints: dict = field(default_factory=dict)  # {item: joints of its own} in the skinned output
     dress_pose: str = ""  # the pose frame 0 was dressed in: "first" or "bind" (AnimateOptions.dress_pose resolved)
     strain_limited_edges: int = 0  # item edges the strain limit shortened, summed over the frames (-1: off)
     # skirts whose hem cannot go round the legs at its height in some frames
@@ -130,7 +136,7 @@ class AnimateReport:
                 "cloth_vertices": self.cloth_vertices, "skinned_items": self.skinned_items,
                 "skinned_rigid_items": self.skinned_rigid_items, "dress_pose": self.dress_pose,
                 "strain_limited_edges": self.strain_limited_edges, "narrow_hems": self.narrow_hems,
-                "skin_fit": self.skin_fit, "mapping": self.mapping}
+                "skin_fit": self.skin_fit, "item_joints": self.item_joints, "mapping": self.mapping}
 
 
 #: a target body whose edges (99th percentile) are this many times the
@@ -507,21 +513,32 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
                  f"{rep.skin_fit['moved_max_mm']:.1f} mm ({rep.timings['skin_fit']:.1f} s; --no-skin-fit skips)")
         skinned = _skinned_copies(copies, SKINNED_SUFFIX if items_mode == "both" else "")
         rep.skinned_items = [m.name for m in skinned]
+    # the copies' loose parts on joints of their own, driven by the cloth (item_joints)
+    item_joints = joint_fit = None
+    plain_copies = skinned   # the copies with the skin's weights (compare_item_joints)
+    if skinned is not None and cloth is not None and opt.item_joints and [m.n_points for m in skinned] == sizes:
+        item_joints, skinned, joint_fit, frames = _item_joints(reference, target, skinned, frames, frame_plan,
+                                                               ref_plan, cloth, opt, rep)
+    n_skin_joints = target.skeleton.n_joints + (0 if item_joints is None else item_joints.n_joints)
     written_items = items if items_mode != "skinned" else []
 
     # the skinned copies measured as UsdSkel poses them (our LBS equals it),
     # against the same static dress: their figures go in the report as
     # "<item>_skinned" beside the point caches'
-    skin_copies = None
+    skin_copies = plain_measure = None
     if skinned is not None and measures is not None:
-        skin_copies = _SkinnedCopies(skinned, target.skeleton.n_joints, measures.names)
+        skin_copies = _SkinnedCopies(skinned, n_skin_joints, measures.names)
+        if opt.compare_item_joints and item_joints is not None:
+            plain_measure = (_SkinnedCopies(plain_copies, target.skeleton.n_joints, measures.names),
+                             {n.removesuffix(SKINNED_SUFFIX) for n in item_joints.items})
     clip_frames = opt.clip_frames
     if clip_frames is None and n_frames > 2000:
         clip_frames = 500
     t_lbs = t_eval = t_pen = t_write = t_measure = 0.0
     written, carry_plan = _hidden_body(target, base_body, items, opt)
     with ShotWriter(out_path, written, written_items, fps=rt.fps, n_frames=n_frames, clip_frames=clip_frames,
-                    velocities=opt.velocities, carry_plan=carry_plan, skinned_items=skinned) as w:
+                    velocities=opt.velocities, carry_plan=carry_plan, skinned_items=skinned,
+                    skeleton=None if item_joints is None else extend_skeleton(written.skeleton, item_joints)) as w:
         def write_block(a, block):
             nonlocal t_write
             tw = time.perf_counter()
@@ -595,6 +612,11 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
                         strain(body_f, pts, pushed, iterations=WELD_ROUND_PASSES, planes=floors)
                         weld(pts)
             check_finite_points(pts, f, rt, motion.path)
+            skin_mats_f = mats
+            if joint_fit is not None:
+                deltas = joint_fit(pts, mats)
+                w.write_item_joints(f, item_joints.world(deltas))
+                skin_mats_f = np.concatenate([mats, deltas])
             if opt.frame_sink is not None:
                 opt.frame_sink.add(f, mats, body_f, pts)
             td = time.perf_counter()
@@ -610,7 +632,14 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
                 if measures is not None:
                     _record(rep, f, measures(body_f, pts))
                     if skin_copies is not None:
-                        _record(rep, None, skin_copies.rows(measures, body_f, mats))
+                        _record(rep, None, skin_copies.rows(measures, body_f, skin_mats_f))
+                    if plain_measure is not None:
+                        copies_f, on_joints = plain_measure
+                        rows = [r for r in copies_f.rows(measures, body_f, mats)
+                                if r["item"].removesuffix(SKINNED_SUFFIX) in on_joints]
+                        for r in rows:
+                            r["item"] += "_without_joints"
+                        _record(rep, None, rows)
                 tm = time.perf_counter()
                 t_measure += tm - td
                 td = tm
@@ -650,6 +679,60 @@ def _hidden_body(target: Character, base_body, items, opt: AnimateOptions):
     info(f"hidden body: {len(subsets.get('hidden_under_items', [])) if keep is None else int((~keep).sum())} "
          f"faces {'deleted' if keep is not None else 'named hidden_under_items'}")
     return replace(target, body=body), plan.with_hidden(subsets, keep)
+
+
+def _item_joints(reference, target, skinned: list, frames, frame_plan, ref_plan: DressPlan, cloth: ClothSolver,
+                 opt: AnimateOptions, rep: AnimateReport) -> tuple:
+    """The skinned copies' joints of their own (:mod:`item_joints`): (the
+    :class:`item_joints.ItemJoints` or None, the copies with their weights,
+    the per-frame :class:`item_joints.JointFit` or None, the example frames
+    (made here when the skinned-copy fit did not make them))."""
+    t0 = time.perf_counter()
+    blend = _joint_blend(frame_plan, ref_plan, cloth)
+    if not blend.any():
+        return None, skinned, None, frames
+    if frames is None:
+        frames = opt.skin_examples if opt.skin_examples is not None else example_frames(reference, target,
+                                                                                        ref_plan, opt)
+        if frames is None:
+            return None, skinned, None, frames
+    blend, chosen = choose_items(skinned, blend, target.skeleton, frames, target.body.faces, target.body.points)
+    for name, c in chosen.items():
+        info(f"{name}: {'on' if c['on'] else 'not on'} joints of its own (over the example poses its loose part "
+             f"lies {c['gap_skin_mm']:.1f} mm from the cloth at the 95th percentile with the skin's weights, "
+             f"{c['gap_joints_mm']:.1f} mm with its own joints; worst new penetrations {c['new_pen_skin_pct']:.2f} / "
+             f"{c['new_pen_joints_pct']:.2f} %, the cloth's {c['new_pen_redress_pct']:.2f} %)")
+    joints, skinned = plan_item_joints(skinned, blend, target.skeleton)
+    rep.timings["item_joints"] = time.perf_counter() - t0
+    if joints is None:
+        return None, skinned, None, frames
+    fit = JointFit(np.concatenate([m.points for m in skinned]), np.concatenate([m.joint_indices for m in skinned]),
+                   np.concatenate([m.joint_weights for m in skinned]), joints)
+    rep.item_joints = {n: joints.items.count(n) for n in dict.fromkeys(joints.items)}
+    info("skinned copies: loose parts on joints of their own, animated from the cloth ("
+         + ", ".join(f"{n} {k}" for n, k in rep.item_joints.items()) + f"; {rep.timings['item_joints']:.1f} s; "
+         "--no-item-joints keeps the skin's weights)")
+    return joints, skinned, fit, frames
+
+
+def _joint_blend(frame_plan, ref_plan: DressPlan, cloth: ClothSolver) -> np.ndarray:
+    """(M,) the share of the item joints in the skinned copies' weights
+    (:func:`item_joints.plan_item_joints`): the cloth weight of the items the
+    cloth simulates, with their loose pieces that no edge joins to the
+    attachment hanging too (a ponytail's strands: bound to the head and the
+    back by the cloth weight, they went 3-7 cm into the back when the head
+    tipped back in the arms-held-high dance). Not from the attachment line
+    on (``hang_start`` 0): the ponytail's scalp cap, blended onto joints
+    fitted to the tail, opened over the skull. None on skirts: their skin's
+    weights (``dress.skirt_weights``) hold better; rigid joints cannot follow
+    a skirt that tents between striding legs (``ref_female_longskirt``'s went
+    1.1 -> 13 % into the legs in the CMU run on ``body_female_heavy``)."""
+    blend = cloth_weights(frame_plan, detached=True)
+    blend[ref_plan.skirt_mask()] = 0.0
+    for sl in frame_plan.item_slices():
+        if not np.any(cloth.weights[sl] > 0):
+            blend[sl] = 0.0
+    return blend
 
 
 def _skinned_copies(skinned: list, suffix: str) -> list:

@@ -71,6 +71,10 @@ def register(sub, common):
                    help="bind mode: hold a skirt's bound parts on the skin they touch in the static dress (its "
                         "binding hangs from the hips above the buttocks: bent forward, the back stood 5 cm off "
                         "them) (default: on)")
+    p.add_argument("--no-item-joints", action="store_true",
+                   help="--items skinned|both: the skinned items' loose parts (a skirt below the hips, a hanging "
+                        "ponytail) keep the skin's weights; by default they get joints of their own, appended to "
+                        "the skeleton and animated from the per-frame cloth (as engines rig skirt and hair joints)")
     p.add_argument("--rigid-items", choices=("skinned", "bound"), default="skinned",
                    help="bind mode: rigid items (shoes, hats, glasses) and decals on the skin (eyebrows) follow "
                         "the skeleton by skinning with their "
@@ -160,7 +164,8 @@ def run(args) -> int:
                           carry_plan=_carry_plan(reference, target, args),
                           hidden_body="delete" if args.delete_hidden_body else "subset",
                           rigid_items=args.rigid_items, strain_limit=args.strain_limit,
-                          contact_hold=args.contact_hold, skin_fit=not args.no_skin_fit)
+                          contact_hold=args.contact_hold, skin_fit=not args.no_skin_fit,
+                          item_joints=not args.no_item_joints)
     rep = animate(reference, target, motion, args.output, opts)
     t = rep.timings
     info(f"wrote {args.output}: {rep.frames} frames at {rep.fps:g} fps, {len(reference.items)} items; "
