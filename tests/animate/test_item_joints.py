@@ -203,3 +203,24 @@ def test_the_ponytail_hangs_on_joints_of_its_own_in_the_arms_held_high_dance(tmp
         d = np.linalg.norm(posed - cached, axis=1)
         # measured 71-75 mm (the skin's weights: 126-136 mm); the cloth's strands part where rigid joints cannot
         assert np.percentile(d, 95) < 0.1, (f, np.percentile(d, 95))
+
+
+@pytest.mark.slow
+def test_no_item_joints_keeps_the_skeleton_of_the_target(tmp_path):
+    """``--no-item-joints``: the skinned copies keep the skin's weights and
+    the shot's Skeleton and SkelAnimation hold the target's joints only."""
+    from pxr import Usd, UsdSkel
+
+    from wearfit_usd.cli import main
+    from wearfit_usd.io.usd import read_character
+    out = tmp_path / "plain.usdc"
+    target = USD_DIR / "body_female_thin.usdc"
+    assert main(["animate", str(USD_DIR / "ref_female.usda"), str(target),
+                 str(BVH_DIR / "cmu_05_12_dance_arms_held_high.bvh"), "-o", str(out), "--start", "1", "--end", "41",
+                 "--items", "skinned", "--no-item-joints", "-q"]) == 0
+    stage = Usd.Stage.Open(str(out))
+    joints = list(UsdSkel.Skeleton(stage.GetPrimAtPath("/Root/Character/Skeleton")).GetJointsAttr().Get())
+    assert len(joints) == read_character(target).skeleton.n_joints
+    assert not any("_joint" in j.rsplit("/", 1)[-1] for j in joints)
+    anim = UsdSkel.Animation(stage.GetPrimAtPath("/Root/Character/Animation"))
+    assert list(anim.GetJointsAttr().Get()) == joints
