@@ -70,10 +70,10 @@ def cloth_weights(plan, hang_start: float = HANG_START, detached: bool = False) 
     :class:`redress.DressPlan`), 0 attached .. 1 free (see the module
     docstring). All zeros when the plan has no loose parts. ``hang_start``:
     the distance from the attachment line where items other than skirts
-    start to hang (``HANG_START``; the skinned copies' item joints take
-    0, :mod:`item_joints`); ``detached``: loose pieces that no path along
-    the edges joins to an attachment (a ponytail's separate strands) hang
-    fully (by default they stay bound as they are)."""
+    start to hang (default ``HANG_START``); ``detached``: loose pieces that
+    no path along the edges joins to an attachment (a ponytail's separate
+    strands) hang fully (by default they stay bound as they are; the
+    skinned copies' item joints take them, :mod:`item_joints`)."""
     m = len(plan.ref_points)
     w = np.zeros(m)
     if plan.looseness is None or plan.mesh.edges is None or not np.any(plan.looseness > 0):
@@ -108,7 +108,8 @@ def cloth_weights(plan, hang_start: float = HANG_START, detached: bool = False) 
     keep = ~skirt | below
     e = e[keep[e[:, 0]] & keep[e[:, 1]]]
     d = attachment_distance(pts, e, anchors & keep)
-    d = np.where(np.isfinite(d), d, np.inf if detached else 0.0)  # unattached pieces: bound as they are
+    # unattached pieces: bound as they are, or hanging fully (detached)
+    d = np.where(np.isfinite(d), d, np.inf if detached else 0.0)
     w = np.where(skirt, smoothstep(d / SKIRT_RAMP), smoothstep((d - hang_start) / HANG_RAMP))
     w[skirt & ~below] = 0.0
     w *= plan.looseness

@@ -72,9 +72,10 @@ def register(sub, common):
                         "binding hangs from the hips above the buttocks: bent forward, the back stood 5 cm off "
                         "them) (default: on)")
     p.add_argument("--no-item-joints", action="store_true",
-                   help="--items skinned|both: the skinned items' loose parts (a skirt below the hips, a hanging "
-                        "ponytail) keep the skin's weights; by default they get joints of their own, appended to "
-                        "the skeleton and animated from the per-frame cloth (as engines rig skirt and hair joints)")
+                   help="--items skinned|both: the skinned items' loose parts (a hanging ponytail, a suit's loose "
+                        "hems) keep the skin's weights; by default they get joints of their own, appended to the "
+                        "skeleton and animated from the per-frame cloth, where the example poses show it helps (as "
+                        "engines rig hair joints); skirts and dresses keep the skin's weights either way")
     p.add_argument("--rigid-items", choices=("skinned", "bound"), default="skinned",
                    help="bind mode: rigid items (shoes, hats, glasses) and decals on the skin (eyebrows) follow "
                         "the skeleton by skinning with their "
