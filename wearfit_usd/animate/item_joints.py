@@ -50,7 +50,7 @@ and dresses excepted: ``try_on._joint_blend`` says why):
    ``SWEEPS`` sweeps refit each joint to the residual the others leave,
    ``r_i = y_i - b_i - sum_(l != k) c_il x_i D_l``: a weighted Procrustes
    of ``x_i`` onto ``r_i / c_ik`` with weights ``c_ik^2``
-   (:func:`geometry.mesh.best_rotation`), Gauss-Seidel: the joints that
+   (:func:`kernels.binding.similarity_transforms` without scale), Gauss-Seidel: the joints that
    share no vertex at once (a greedy colouring of the joints' graph; each
    colour's pairs summed by ``bincount``, one batched 3 x 3 SVD). All at
    once (Jacobi) overshot: on a bent strip the sweeps doubled the error of
@@ -90,7 +90,7 @@ from scipy.spatial import cKDTree
 
 from ..dress.item_weights import MAX_INFLUENCES, prune, weight_matrix
 from ..geometry.closest import SurfaceQuery
-from ..geometry.mesh import best_rotation
+from ..kernels.binding import similarity_transforms
 from ..model import Skeleton
 from ..motion.skinning import Skinner
 from ..transforms import invert
@@ -260,7 +260,6 @@ def plan_item_joints(copies: list, blend: np.ndarray, skeleton: Skeleton,
             ji, jw = (m.joint_indices, m.joint_weights) if m.joint_indices is None else \
                 prune(weight_matrix(m.joint_indices, m.joint_weights, total), max_influences)
             c = m.copy_with_points(m.points)
-            c.name = m.name
             c.joint_indices, c.joint_weights = ji, jw
             out.append(c)
             continue
@@ -274,7 +273,6 @@ def plan_item_joints(copies: list, blend: np.ndarray, skeleton: Skeleton,
         weights = sp.diags(1.0 - a) @ body_w + v
         ji, jw = prune(weights, max_influences)
         c = m.copy_with_points(m.points)
-        c.name = m.name
         c.joint_indices, c.joint_weights = ji, jw
         out.append(c)
     return joints, out
@@ -372,29 +370,31 @@ class JointFit:
 class _Procrustes:
     """Weighted Kabsch fits of fixed source points, one per group, all at
     once: ``dst ~ src @ R_g + t_g`` over the pairs of each group present in
-    ``group`` (``self.groups``, sorted). Built once (the groups' sums as a
-    sparse matrix with the weights in it, the sources' means); called with
-    the (P, 3) destinations -> (len(groups), 4, 4) row-vector rigid
-    transforms."""
+    ``group`` (``self.groups``, sorted), by the binding's
+    :func:`kernels.binding.similarity_transforms` (compiled when numba is
+    there) without scale. Built once (the groups' weighted means and
+    centred cross-covariance rows as sparse (G, P) and (3G, P) matrices);
+    called with the (P, 3) destinations -> (len(groups), 4, 4) row-vector
+    rigid transforms."""
 
     def __init__(self, src: np.ndarray, group: np.ndarray, weights: np.ndarray):
         self.groups, compact = np.unique(group, return_inverse=True)
         g, p = len(self.groups), len(src)
-        self.sums = sp.csr_matrix((weights, (compact, np.arange(p))), shape=(g, p))
-        self.w = np.asarray(self.sums.sum(axis=1)).ravel()
-        self.safe = np.maximum(self.w, 1e-300)[:, None]
-        self.src = src
-        self.ms = (self.sums @ src) / self.safe
+        sums = sp.csr_matrix((weights, (compact, np.arange(p))), shape=(g, p))
+        w = np.maximum(np.asarray(sums.sum(axis=1)).ravel(), 1e-300)
+        self.mean = (sp.diags(1.0 / w) @ sums).tocsr()
+        self.ms = self.mean @ src
+        centred = (src - self.ms[compact]) * weights[:, None]          # (P, 3)
+        rows = ((3 * compact)[:, None] + np.arange(3)).ravel()       # row 3g + a: the a-th source coordinate
+        self.cov = sp.csr_matrix((centred.ravel(), (rows, np.repeat(np.arange(p), 3))), shape=(3 * g, p))
+        self.var = np.zeros(g)
 
     def __call__(self, dst: np.ndarray) -> np.ndarray:
-        g = len(self.groups)
-        md = (self.sums @ dst) / self.safe
-        cross = self.sums @ (self.src[:, :, None] * dst[:, None, :]).reshape(len(dst), 9)
-        h = cross.reshape(g, 3, 3) - self.w[:, None, None] * self.ms[:, :, None] * md[:, None, :]
-        rot, _ = best_rotation(h)
-        out = np.tile(np.eye(4), (g, 1, 1))
+        _, rot, t = similarity_transforms(np.ascontiguousarray(dst, dtype=np.float64), self.mean, self.cov,
+                                          self.ms, self.var, False)
+        out = np.tile(np.eye(4), (len(self.groups), 1, 1))
         out[:, :3, :3] = rot
-        out[:, 3, :3] = md - np.einsum("na,nab->nb", self.ms, rot)
+        out[:, 3, :3] = t
         return out
 
 
