@@ -17,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
+from ..geometry.mesh import best_rotation
 from .jit import HAVE_NUMBA, jit
 from .normals import face_normals_into, face_normals_numpy
 
@@ -259,16 +260,11 @@ def similarity_transforms_numpy(points: np.ndarray, mean: sp.csr_matrix, cov: sp
                                 src_var: np.ndarray, scale: bool):
     """:func:`similarity_transforms` in numpy (one batched SVD)."""
     md = mean @ points
-    h = (cov @ points).reshape(-1, 3, 3)
-    u, sv, vt = np.linalg.svd(h)
-    d = np.sign(np.linalg.det(u @ vt))
-    dm = np.ones((len(d), 3))
-    dm[:, 2] = d
-    rot = (u * dm[:, None, :]) @ vt
+    rot, sv = best_rotation((cov @ points).reshape(-1, 3, 3))
     if scale:
-        s = (sv * dm).sum(axis=1) / np.maximum(src_var, 1e-300)
+        s = sv.sum(axis=1) / np.maximum(src_var, 1e-300)
     else:
-        s = np.ones(len(d))
+        s = np.ones(len(rot))
     t = md - s[:, None] * np.einsum("gi,gij->gj", src_mean, rot)
     return s, rot, t
 
