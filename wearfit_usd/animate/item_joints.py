@@ -89,6 +89,7 @@ import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
 from ..dress.item_weights import MAX_INFLUENCES, prune, weight_matrix
+from ..dress.regions import ancestors
 from ..geometry.closest import SurfaceQuery
 from ..kernels.binding import similarity_transforms
 from ..model import Skeleton
@@ -160,13 +161,7 @@ def extend_skeleton(skeleton: Skeleton, joints: ItemJoints) -> Skeleton:
 
 def _lowest_common_ancestor(parents: np.ndarray, joints) -> int:
     """The deepest joint whose subtree holds every joint of ``joints``."""
-    def chain(j):
-        out = []
-        while j >= 0:
-            out.append(int(j))
-            j = parents[j]
-        return out[::-1]
-    chains = [chain(j) for j in joints]
+    chains = [ancestors(parents, int(j))[::-1] for j in joints]   # root first
     lca = chains[0][0]
     for level in zip(*chains):
         if len(set(level)) != 1:

@@ -25,7 +25,8 @@ REGION_NAMES = ["torso", "left_leg", "right_leg", "left_arm", "right_arm", "head
 N_REGIONS = len(REGION_NAMES)
 
 
-def _ancestors(parents: np.ndarray, j: int) -> list[int]:
+def ancestors(parents: np.ndarray, j: int) -> list[int]:
+    """``j`` and its ancestors up to the root, in that order."""
     out = [j]
     while parents[out[-1]] >= 0:
         out.append(int(parents[out[-1]]))
@@ -35,8 +36,8 @@ def _ancestors(parents: np.ndarray, j: int) -> list[int]:
 def _branch(parents: np.ndarray, a: int, b: int) -> int:
     """Child of the lowest common ancestor of joints a and b that leads to a
     (the root of a's branch), or a itself when b lies above a."""
-    anc_b = set(_ancestors(parents, b))
-    path = _ancestors(parents, a)
+    anc_b = set(ancestors(parents, b))
+    path = ancestors(parents, a)
     for i, j in enumerate(path):
         if j in anc_b:
             return path[i - 1] if i > 0 else a
