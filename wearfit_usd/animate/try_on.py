@@ -54,7 +54,7 @@ from .cloth import ClothSolver, PushCarry
 from .contact_hold import ContactHold
 from .frame_eval import FrameEvaluator
 from .hem_span import SLACK, HemSpan, narrow_frames
-from .item_joints import JointFit, choose_items, extend_skeleton, plan_item_joints
+from .item_joints import HeldOut, JointFit, choose_items, extend_skeleton, plan_item_joints
 from .loose import cloth_weights
 from .measures import MEASURES, MotionMeasures, worst_frames
 from .penetration_guard import PenetrationGuard
@@ -615,7 +615,7 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
             skin_mats_f, tj = mats, 0.0
             if joint_fit is not None:
                 tj = time.perf_counter()
-                deltas = joint_fit(pts, mats)
+                deltas = joint_fit(pts, mats, body_f)
                 w.write_item_joints(f, item_joints.world(deltas))
                 skin_mats_f = np.concatenate([mats, deltas])
                 tj = time.perf_counter() - tj
@@ -699,18 +699,22 @@ def _item_joints(reference, target, skinned: list, frames, frame_plan, ref_plan:
                                                                                         ref_plan, opt)
         if frames is None:
             return None, skinned, None, frames
-    blend, chosen = choose_items(skinned, blend, target.skeleton, frames, target.body.faces, target.body.points)
+    skirt = ref_plan.skirt_mask()
+    skirts = {m.name for m, sl in zip(skinned, ref_plan.item_slices()) if skirt[sl].any()}
+    blend, chosen = choose_items(skinned, blend, target.skeleton, frames, target.body.faces, target.body.points,
+                                 skirts=skirts)
     for name, c in chosen.items():
         info(f"{name}: {'on' if c['on'] else 'not on'} joints of its own (over the example poses its loose part "
              f"lies {c['gap_skin_mm']:.1f} mm from the cloth at the 95th percentile with the skin's weights, "
              f"{c['gap_joints_mm']:.1f} mm with its own joints; worst new penetrations {c['new_pen_skin_pct']:.2f} / "
              f"{c['new_pen_joints_pct']:.2f} %, the cloth's {c['new_pen_redress_pct']:.2f} %)")
-    joints, skinned = plan_item_joints(skinned, blend, target.skeleton)
+    joints, skinned = plan_item_joints(skinned, blend, target.skeleton, skirts=skirts)
     rep.timings["item_joints"] = time.perf_counter() - t0
     if joints is None:
         return None, skinned, None, frames
     fit = JointFit(np.concatenate([m.points for m in skinned]), np.concatenate([m.joint_indices for m in skinned]),
-                   np.concatenate([m.joint_weights for m in skinned]), joints)
+                   np.concatenate([m.joint_weights for m in skinned]), joints,
+                   held_out=HeldOut(target.body.faces, target.body.points))
     rep.item_joints = {n: joints.items.count(n) for n in dict.fromkeys(joints.items)}
     info("skinned copies: loose parts on joints of their own, animated from the cloth ("
          + ", ".join(f"{n} {k}" for n, k in rep.item_joints.items()) + f"; {rep.timings['item_joints']:.1f} s; "
@@ -726,12 +730,12 @@ def _joint_blend(frame_plan, ref_plan: DressPlan, cloth: ClothSolver) -> np.ndar
     back by the cloth weight, they went 3-7 cm into the back when the head
     tipped back in the arms-held-high dance). Not from the attachment line
     on (``hang_start`` 0): the ponytail's scalp cap, blended onto joints
-    fitted to the tail, opened over the skull. None on skirts: their skin's
-    weights (``dress.skirt_weights``) hold better; rigid joints cannot follow
-    a skirt that tents between striding legs (``ref_female_longskirt``'s went
-    1.1 -> 13 % into the legs in the CMU run on ``body_female_heavy``)."""
+    fitted to the tail, opened over the skull. Skirts too, with more joints
+    (``item_joints.SKIRT_VERTICES_PER_JOINT``) fitted to the cloth held out
+    from the legs (``item_joints.held_out``); with the ponytail's 24 joints
+    fitted to the cloth itself ``ref_female_longskirt``'s skirt went 1.1 ->
+    13 % into the legs in the CMU run on ``body_female_heavy``."""
     blend = cloth_weights(frame_plan, detached=True)
-    blend[ref_plan.skirt_mask()] = 0.0
     for sl in frame_plan.item_slices():
         if not np.any(cloth.weights[sl] > 0):
             blend[sl] = 0.0
