@@ -112,8 +112,8 @@ VERTICES_PER_JOINT = 40
 MIN_JOINTS = 2
 MAX_JOINTS = 24
 #: skirts and dresses: about this many loose vertices per joint, at most this many joints
-SKIRT_VERTICES_PER_JOINT = 6
-SKIRT_MAX_JOINTS = 96
+SKIRT_VERTICES_PER_JOINT = 4
+SKIRT_MAX_JOINTS = 128
 #: the fit's targets: the cloth held this far (m) out from the body where it lies on it ...
 PUSH = 0.015
 #: ... less with its clearance, none from this clearance (m) on
@@ -400,7 +400,7 @@ class HeldOut:
     The item joints' transforms are rigid fits of many vertices, so the
     skinned copy misses the cloth by a centimetre or two on either side
     (skirts tenting between striding legs: 2-3 cm at the 95th percentile
-    with about 6 vertices a joint); fitted to the cloth itself, half of that
+    with about 4-6 vertices a joint); fitted to the cloth itself, half of that
     miss went into the legs where the cloth lies on them. Fitted to the cloth
     held out, the miss stays outside.
 
