@@ -275,7 +275,7 @@ def test_the_long_skirt_follows_its_cloth_on_joints_of_its_own_in_a_walk(tmp_pat
     narrow skirt rides up in stride: skinned with each side's skin it went
     into the legs (2.65 % new penetrations against the cloth redress's
     0.56 %, stretch p99 3.99x); on joints of its own fitted to the cloth
-    held out from the legs, 0.70 % and 1.42x."""
+    held out from the legs, 0.70 % and 1.48x (128 joints)."""
     from wearfit_usd.animate.try_on import AnimateOptions, animate
     from wearfit_usd.io.bvh import read_bvh
     from wearfit_usd.io.usd import read_character
