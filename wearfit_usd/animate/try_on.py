@@ -732,7 +732,7 @@ def _joint_blend(frame_plan, ref_plan: DressPlan, cloth: ClothSolver) -> np.ndar
     on (``hang_start`` 0): the ponytail's scalp cap, blended onto joints
     fitted to the tail, opened over the skull. Skirts too, with more joints
     (``item_joints.SKIRT_VERTICES_PER_JOINT``) fitted to the cloth held out
-    from the legs (``item_joints.held_out``); with the ponytail's 24 joints
+    from the legs (``item_joints.HeldOut``); with the ponytail's 24 joints
     fitted to the cloth itself ``ref_female_longskirt``'s skirt went 1.1 ->
     13 % into the legs in the CMU run on ``body_female_heavy``."""
     blend = cloth_weights(frame_plan, detached=True)
