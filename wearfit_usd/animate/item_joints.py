@@ -100,6 +100,7 @@ from scipy.spatial import cKDTree
 from ..dress.item_weights import MAX_INFLUENCES, prune, weight_matrix
 from ..dress.regions import ancestors
 from ..geometry.closest import SurfaceQuery
+from ..geometry.mesh import edge_length_percentile
 from ..kernels.binding import similarity_transforms
 from ..kernels.grid import RadiusGrid
 from ..model import Skeleton
@@ -422,10 +423,9 @@ class HeldOut:
     def __init__(self, body_faces: np.ndarray, rest_body: np.ndarray, push: float = PUSH,
                  reach: float = PUSH_REACH):
         self.query = SurfaceQuery(np.asarray(body_faces, dtype=np.int64), np.asarray(rest_body, dtype=np.float64))
-        pts, faces = self.query.points, self.query.faces
-        longest = float(np.linalg.norm(pts[faces] - pts[np.roll(faces, 1, axis=1)], axis=2).max())
         self.push, self.reach = float(push), float(reach)
-        self.grid = RadiusGrid(pts, self.reach + longest)
+        longest = edge_length_percentile(self.query.points, self.query.faces, 100.0)
+        self.grid = RadiusGrid(self.query.points, self.reach + longest)
         self.hint = None
 
     def __call__(self, points: np.ndarray, body_points: np.ndarray) -> np.ndarray:
