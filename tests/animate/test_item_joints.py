@@ -220,12 +220,16 @@ def test_choose_items_keeps_joints_only_where_they_follow_the_cloth_better():
         s = _rigid([-0.1 * f, 0.0, 0.0], [0.0, 0.0, 0.0])   # the hem swings forward, away from the body
         swung[f, loose] = strip.points[loose] @ s[:3, :3] + s[3, :3]
     mask = np.zeros(strip.n_points, dtype=bool)
-    kept, rep = choose_items([strip], blend, skel, (mats, bodies, swung, mask), body_faces, body_pts)
-    assert rep["strip"]["on"] and np.array_equal(kept, blend), rep
-    assert rep["strip"]["gap_joints_mm"] < 0.1 * rep["strip"]["gap_skin_mm"]
+    kept, rep_kept = choose_items([strip], blend, skel, (mats, bodies, swung, mask), body_faces, body_pts)
+    assert rep_kept["strip"]["on"] and np.array_equal(kept, blend), rep_kept
+    assert rep_kept["strip"]["gap_joints_mm"] < 0.1 * rep_kept["strip"]["gap_skin_mm"]
     still = np.repeat(strip.points[None], 5, axis=0)
     dropped, rep = choose_items([strip], blend, skel, (mats, bodies, still, mask), body_faces, body_pts)
     assert not rep["strip"]["on"] and not dropped.any(), rep
+    # the plan passed in (as animate does) chooses the same
+    plan = plan_item_joints([strip], blend, skel)
+    again, rep2 = choose_items([strip], blend, skel, (mats, bodies, swung, mask), body_faces, body_pts, plan=plan)
+    assert rep2 == rep_kept and np.array_equal(again, kept)
 
 
 @pytest.mark.slow

@@ -482,7 +482,7 @@ class _Procrustes:
 
 
 def choose_items(copies: list, blend: np.ndarray, skeleton: Skeleton, frames: tuple, body_faces: np.ndarray,
-                 rest_body: np.ndarray, skirts=()) -> tuple[np.ndarray, dict]:
+                 rest_body: np.ndarray, skirts=(), plan: tuple | None = None) -> tuple[np.ndarray, dict]:
     """``blend`` with the items that do not gain from joints of their own
     set to 0 (module docstring, 3).
 
@@ -493,6 +493,10 @@ def choose_items(copies: list, blend: np.ndarray, skeleton: Skeleton, frames: tu
         bodies, (F, M, 3) redressed items, mask) as
         :func:`animate.skin_fit.training_frames` gives them.
     body_faces : (T, 3); rest_body : (N, 3) the body the copies rest on.
+    skirts : as :func:`plan_item_joints`.
+    plan : the (:class:`ItemJoints` or None, copies) that
+        ``plan_item_joints(copies, blend, skeleton, skirts=skirts)`` gives,
+        when the caller has it already (planned here when None).
 
     Returns
     -------
@@ -505,7 +509,7 @@ def choose_items(copies: list, blend: np.ndarray, skeleton: Skeleton, frames: tu
     redress and its new penetrations stay within ``PENETRATION_SLACK`` of
     the larger of the other two.
     """
-    joints, with_joints = plan_item_joints(copies, blend, skeleton, skirts=skirts)
+    joints, with_joints = plan if plan is not None else plan_item_joints(copies, blend, skeleton, skirts=skirts)
     blend = np.asarray(blend, dtype=np.float64).copy()
     if joints is None:
         return blend, {}

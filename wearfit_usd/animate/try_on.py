@@ -701,14 +701,17 @@ def _item_joints(reference, target, skinned: list, frames, frame_plan, ref_plan:
             return None, skinned, None, frames
     skirt = ref_plan.skirt_mask()
     skirts = {m.name for m, sl in zip(skinned, ref_plan.item_slices()) if skirt[sl].any()}
-    blend, chosen = choose_items(skinned, blend, target.skeleton, frames, target.body.faces, target.body.points,
-                                 skirts=skirts)
+    plan = plan_item_joints(skinned, blend, target.skeleton, skirts=skirts)
+    chosen_blend, chosen = choose_items(skinned, blend, target.skeleton, frames, target.body.faces,
+                                        target.body.points, skirts=skirts, plan=plan)
     for name, c in chosen.items():
         info(f"{name}: {'on' if c['on'] else 'not on'} joints of its own (over the example poses its loose part "
              f"lies {c['gap_skin_mm']:.1f} mm from the cloth at the 95th percentile with the skin's weights, "
              f"{c['gap_joints_mm']:.1f} mm with its own joints; worst new penetrations {c['new_pen_skin_pct']:.2f} / "
              f"{c['new_pen_joints_pct']:.2f} %, the cloth's {c['new_pen_redress_pct']:.2f} %)")
-    joints, skinned = plan_item_joints(skinned, blend, target.skeleton, skirts=skirts)
+    # planned again only when the choice left an item out
+    joints, skinned = (plan if np.array_equal(chosen_blend, blend) else
+                       plan_item_joints(skinned, chosen_blend, target.skeleton, skirts=skirts))
     rep.timings["item_joints"] = time.perf_counter() - t0
     if joints is None:
         return None, skinned, None, frames
