@@ -102,7 +102,9 @@ def test_longskirt_back_stays_on_the_buttocks_in_a_forward_bend(tmp_path):
     # ref_female_longskirt on body_female_heavy, CMU punch, the crouch at clip
     # frames 1560-1600 (10 frames at 30 fps). The skirt parts are bound to hip
     # triangles above the buttocks; bent forward, its back stood off them:
-    # separation p95 58.9 mm without the hold, 16.9 mm with it (measured)
+    # separation p95 58.9 mm without the hold, 16.9 mm with it (measured);
+    # with the skirt over the hot pants (dress.layers.under_skirts) 20.2 and
+    # 11.0 mm
     import json
 
     from wearfit_usd.cli import main
@@ -116,6 +118,6 @@ def test_longskirt_back_stays_on_the_buttocks_in_a_forward_bend(tmp_path):
         assert rep["frames"] == 10
         figures[flag] = {k: v["value"] for k, v in rep["motion_worst"]["long_skirt"].items()}
     held, free = figures["--contact-hold"], figures["--no-contact-hold"]
-    assert held["separation_p95_mm"] < 25.0 < free["separation_p95_mm"]
+    assert held["separation_p95_mm"] < 15.0 < free["separation_p95_mm"]
     assert held["new_pen_pct"] < 1.0
     assert held["stretch_max"] < 1.5

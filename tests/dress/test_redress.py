@@ -9,7 +9,7 @@ import trimesh
 
 from wearfit_usd.dress.apply import dress, fitted_body_points
 from wearfit_usd.dress.corrections import SPREAD_RINGS, push_out, spread_corrections
-from wearfit_usd.dress.layers import LAYER_MIN_GAP, keep_layers, layer_gaps, layer_order
+from wearfit_usd.dress.layers import ENCLOSED_GAP, LAYER_MIN_GAP, keep_layers, layer_gaps, layer_order, under_skirts
 from wearfit_usd.dress.plan import plan
 from wearfit_usd.dress.repair import release_misfits
 from wearfit_usd.errors import InputError
@@ -534,6 +534,109 @@ def test_layer_pairs_are_fixed_on_the_reference():
     searched = [(i, j, g) for i, j, g, _ in layers]  # the same gaps, the inner vertex searched again
     out2, moved2 = keep_layers(q, tgt, offsets, searched)
     assert moved2[:n].any() and out2[:n, 2].max() > 0.03
+
+
+def test_a_skirt_goes_over_the_parts_it_encloses_and_under_the_top_over_it():
+    """A coarse skirt (vertices 4 cm apart, 6 mm over a flat skin, up to
+    y = 12 cm) and a suit of two parts: shorts up to y = 6 cm, 4 mm over the
+    skin with a pocket 12 mm out between four skirt vertices; a top from
+    y = 9 cm up, 9 mm out over the skirt's top except for a patch at 5 mm,
+    under it. On the reference the pocket stands out of the skirt and the
+    patch is under it. With the order per part (:func:`under_skirts`) the
+    layer pass lifts the skirt over the whole of the shorts (a ray from
+    every shorts vertex meets the skirt) by at least ``ENCLOSED_GAP`` at the
+    pocket's four skirt vertices, and the top's patch over the skirt (by
+    ``LAYER_MIN_GAP``); the
+    item-level gaps alone leave both as they are."""
+    from wearfit_usd.geometry.rays import cast_rays
+    box = trimesh.creation.box(extents=(0.5, 0.5, 0.2))
+    q = SurfaceQuery(np.asarray(box.faces), np.asarray(box.vertices) - [0, 0, 0.1])
+    skirt, s_faces = _grid(n=4, step=0.04)
+    skirt = skirt + [0, 0, 0.006]
+    shorts, h_faces = _grid(n=13, step=0.01)
+    shorts = shorts[:, [0, 1, 2]] * [1, 0.5, 1] + [0, 0, 0.004]        # y 0..6 cm
+    pocket = np.linalg.norm(shorts[:, :2] - [0.06, 0.02], axis=1) < 0.006
+    shorts[pocket, 2] = 0.012
+    top, t_faces = _grid(n=13, step=0.01)
+    top = top + [0, 0.09, 0.009]                                         # y 9..21 cm
+    patch = (top[:, 1] < 0.115) & (np.abs(top[:, 0] - 0.06) < 0.015)
+    top[patch, 2] = 0.005
+    suit_pts = np.concatenate([shorts, top])
+    suit_faces = np.concatenate([h_faces, t_faces + len(shorts)])
+    items = [_mesh("skirt", skirt, s_faces), _mesh("suit", suit_pts, suit_faces)]
+    pts = np.concatenate([skirt, suit_pts])
+    offsets = np.array([0, len(skirt), len(pts)])
+    clear = q.signed_distance(pts)
+    foot = q.closest(pts)["point"]
+    order = layer_order(items, offsets, pts, clear)
+    plain = layer_gaps(q, pts, offsets, order, clear, foot=foot)
+    per_part = under_skirts(plain, items, offsets, pts, clear, foot, ["skirt"])
+    n_s, n_h = len(skirt), len(shorts)
+    sh = np.arange(n_s, n_s + n_h)                   # the shorts, stacked
+    tp = np.arange(n_s + n_h, len(pts))              # the top
+
+    def covered(p):
+        hit = cast_rays(p[sh], np.tile([0.0, 0.0, 1.0], (n_h, 1)), p[:n_s], s_faces, 0.0, 0.05)
+        return hit >= 0
+
+    around = np.linalg.norm(skirt[:, :2] - [0.06, 0.10], axis=1) < 0.03   # the skirt vertices round the patch
+
+    def top_over_skirt(p):  # the top's patch vertices against the skirt at their spot
+        return p[tp[patch], 2] - p[:n_s][around, 2].max()
+
+    assert not covered(pts)[pocket].any() and (top_over_skirt(pts) < 0).all()
+    p_plain, _ = keep_layers(q, pts, offsets, plain)
+    assert not covered(p_plain)[pocket].all() and (top_over_skirt(p_plain) < 0).all()
+    p_new, moved = keep_layers(q, pts, offsets, per_part)
+    assert covered(p_new).all()
+    assert not moved[sh].any()                       # the shorts stay; the skirt goes over them
+    near = np.linalg.norm(skirt[:, :2] - [0.06, 0.02], axis=1) < 0.03
+    assert (p_new[:n_s][near, 2] >= 0.012 + ENCLOSED_GAP - 1e-9).all()
+    # LAYER_MIN_GAP over the skirt vertex it was paired with on the reference; a
+    # skirt vertex beside it rose 1 mm over the shorts in the same pass
+    assert (top_over_skirt(p_new) >= LAYER_MIN_GAP - 0.001 - 1e-9).all()
+    # the shorts' own entry over the skirt (if any) holds no pair any more
+    for i, j, _, pair in per_part:
+        if (i, j) == (1, 0):
+            assert (pair[:n_h] < 0).all()
+
+
+@pytest.mark.slow
+def test_the_long_skirt_goes_over_the_hot_pants_and_under_the_top(ref_female_longskirt, usd_dir):
+    """``ref_female_longskirt.usda`` authors its hot pants through the skirt
+    at the hips (one mesh with the top, never an outer layer): dressed on
+    ``body_female_heavy`` the skirt covered 36 % of the pants' vertices
+    under its span (a ray along the body normal from each meets it within
+    5 cm), the pants showing through it at the hips and pockets. With the
+    per-part order every one of them is under the skirt, and the top's hem
+    over the skirt's waistband."""
+    from wearfit_usd.geometry.mesh import components
+    from wearfit_usd.geometry.rays import cast_rays
+    from wearfit_usd.io.usd import read_character
+    tgt = read_character(usd_dir / "body_female_heavy.usdc")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = dress(ref_female_longskirt, tgt)
+    items = {m.name: m for m in res.items}
+    suit, skirt = items["female_casualsuit02"], items["long_skirt"]
+    q = SurfaceQuery(tgt.body.faces, tgt.body.points)
+    part = components(suit.faces, suit.n_points)
+    ref_suit = ref_female_longskirt.item("female_casualsuit02")
+    tops = np.array([ref_suit.points[part == c, 1].max() for c in range(part.max() + 1)])
+    sizes = np.bincount(part)
+    pants = part == np.argmin(np.where(sizes > 1000, tops, np.inf))
+    top_faces = suit.faces[np.all(part[suit.faces] == np.argmax(tops), axis=1)]
+
+    def over(src, pts, faces, lo):
+        n = q.closest(src)["normal"]
+        return cast_rays(src, n / np.linalg.norm(n, axis=1, keepdims=True), pts, faces, lo, 0.05) >= 0
+
+    p = suit.points[pants]
+    span, covered = over(p, skirt.points, skirt.faces, -0.05), over(p, skirt.points, skirt.faces, 0.0)
+    assert span.sum() > 1000 and (covered & span).sum() >= 0.99 * span.sum(), (span.sum(), (covered & span).sum())
+    k = skirt.points
+    span, covered = over(k, suit.points, top_faces, -0.05), over(k, suit.points, top_faces, 0.0)
+    assert span.sum() > 50 and (covered & span).sum() >= 0.85 * span.sum(), (span.sum(), (covered & span).sum())
 
 
 def test_dressing_the_reference_onto_its_own_shape_gives_it_back(ref_male, ref_female, usd_dir):

@@ -35,7 +35,7 @@ from . import regions as R
 from .binding import Binding, bind, blend_rows, rebind
 from .bridges import bridge_weights, item_joint_weights
 from .corrections import LooseSmoother, looseness
-from .layers import layer_gaps, layer_order
+from .layers import layer_gaps, layer_order, under_skirts
 from .rigid_parts import RigidParts
 from .seams import SEAM_BAND, seam_shares
 
@@ -136,7 +136,8 @@ class DressPlan:
         an item bridges a fold of the body (:mod:`bridges`);
     smoother: the :class:`LooseSmoother` of that weight;
     layers: [(outer item, inner item, separation (n_outer,) m, inner vertex
-        (n_outer,))] (:func:`layers.layer_gaps`);
+        (n_outer,))] (:func:`layers.layer_gaps`, skirts over the parts they
+        enclose: :func:`layers.under_skirts`);
     timings: seconds per planning step;
     rigid_parts: the rigid groups' per-body evaluator (None without groups);
     released_groups: rigid groups (as ``rigid_groups``) that
@@ -681,5 +682,6 @@ def plan(ref: Character, k: int = 5, use_regions: bool = True, rigid="auto", aut
                      rigid_groups=rigid_groups, rigid_items=rigid_items,
                      insets_kept=rigid_rows,
                      looseness=loose, smoother=LooseSmoother(mesh.neighbours, loose, bound=binding, points=pts),
-                     layers=layer_gaps(ref_query, pts, offsets, order, ref_clear, foot=foot["point"]),
+                     layers=under_skirts(layer_gaps(ref_query, pts, offsets, order, ref_clear, foot=foot["point"]),
+                                         items, offsets, pts, ref_clear, foot["point"], skirts, fixed=rigid_rows),
                      timings={"regions_s": t1 - t0, "bind_s": t2 - t1, "plan_rest_s": t3 - t2})
