@@ -15,7 +15,7 @@ DATA = Path(os.environ.get("WEARFIT_DATA", REPO.parent / "shared" / "data"))
 USD_DIR = DATA / "usd"
 BVH_DIR = DATA / "bvh"
 DEFAULT_OUT = REPO / "benchmarks" / "results"
-STAGES = ["fit", "dress", "animate", "skinned", "motion", "rigs", "render", "fuzz", "batch"]
+STAGES = ["fit", "dress", "animate", "skinned", "motion", "rigs", "thirdparty", "render", "fuzz", "batch"]
 
 
 def clip_end(motion, frames: int, fps: float = 30.0, start: int = 1) -> int:
