@@ -283,11 +283,11 @@ def under_skirts(layers: list, items: list[Mesh], offsets: np.ndarray, points: n
             part = components(item.faces, item.n_points)
             tops = np.full(part.max() + 1, -np.inf)
             np.maximum.at(tops, part, points[xi, 1])
-            dist, k = tree.query(foot[xi], k=1, distance_upper_bound=spot)
+            dist, nearest = tree.query(foot[xi], k=1, distance_upper_bound=spot)
             near = np.isfinite(dist)
             touching = np.isin(part, np.unique(part[near]))
             enclosed = touching & (tops[part] <= top - below)
-            have = {(o, i): k for k, (o, i, *_) in enumerate(out)}
+            have = {(o, i): n for n, (o, i, *_) in enumerate(out)}
             if enclosed.any():
                 g = np.full(len(si), LAYER_MIN_GAP)
                 pair = np.full(len(si), -1, dtype=np.int64)
@@ -308,7 +308,7 @@ def under_skirts(layers: list, items: list[Mesh], offsets: np.ndarray, points: n
             ok = near & touching & ~enclosed
             if fixed is not None:
                 ok &= ~np.asarray(fixed)[xi]
-            d = clearance[xi[ok]] - clearance[si[k[ok]]]
+            d = clearance[xi[ok]] - clearance[si[nearest[ok]]]
             n_part = part.max() + 1
             ups = np.bincount(part[ok], weights=d > 0.0005, minlength=n_part)
             downs = np.bincount(part[ok], weights=d < -0.0005, minlength=n_part)
@@ -324,7 +324,7 @@ def under_skirts(layers: list, items: list[Mesh], offsets: np.ndarray, points: n
                 g1 = np.full(len(xi), LAYER_MIN_GAP)
                 p1 = np.full(len(xi), -1, dtype=np.int64)
             if len(over):
-                rows, under = _highest_within(foot, clearance, xi[over], si, float(np.median(reach)))
+                rows, under = _highest_within(foot, clearance, xi[over], si, spot)
                 v = over[rows]
                 g1[v] = np.maximum(np.minimum(LAYER_MIN_GAP, clearance[xi[v]] - clearance[under]), over_gap)
                 p1[v] = under
