@@ -24,13 +24,14 @@ LAYER_RADIUS = 0.03   # m: items closer than this may lie over one another
 # m: separation kept between layers (or their reference gap if smaller): covers the sag of a coarse outer
 # layer between its vertices
 LAYER_MIN_GAP = 0.005
+#: close vertex pairs an item (:func:`layer_order`) or a part of one
+#: (:func:`under_skirts`) needs to lie over another
+MIN_PAIRS = 20
 #: m: a connected part of another item whose top lies at least this far
 #: below a skirt's top is enclosed by the skirt (:func:`under_skirts`)
 ENCLOSED_BELOW = 0.01
 #: m: the least separation a skirt keeps over the parts it encloses
 ENCLOSED_GAP = 0.003
-#: close vertex pairs a part needs to count as lying over a skirt
-MIN_PAIRS = 20
 
 
 def layer_pairs(items: list[Mesh], offsets: np.ndarray, points: np.ndarray, clearance: np.ndarray,
@@ -63,7 +64,7 @@ def layer_pairs(items: list[Mesh], offsets: np.ndarray, points: np.ndarray, clea
 
 
 def layer_order(items: list[Mesh], offsets: np.ndarray, points: np.ndarray, clearance: np.ndarray,
-                radius: float = LAYER_RADIUS, min_pairs: int = 20):
+                radius: float = LAYER_RADIUS, min_pairs: int = MIN_PAIRS):
     """Item-level layer order on the reference: [(outer item, inner item,
     separation to keep (m))] for every pair of items that overlap, the outer
     one being farther from the body at most of their close vertex pairs. The
@@ -264,7 +265,9 @@ def under_skirts(layers: list, items: list[Mesh], offsets: np.ndarray, points: n
     """
     names = [m.name for m in items]
     out = [tuple(e) for e in layers]
-    for s in [names.index(n) for n in skirts if n in names]:
+    skirt_rows = [names.index(n) for n in skirts if n in names]
+    parts = [components(m.faces, m.n_points) for m in items] if skirt_rows else []
+    for s in skirt_rows:
         si = np.arange(offsets[s], offsets[s + 1])
         top = float(points[si, 1].max())
         tree = cKDTree(foot[si])
@@ -276,11 +279,10 @@ def under_skirts(layers: list, items: list[Mesh], offsets: np.ndarray, points: n
         np.maximum.at(reach, ed[:, 1], length)
         reach = np.minimum(reach, 3.0 * radius)
         spot = max(radius, float(np.median(reach)))   # "over the same spot" of the skirt
-        for x, item in enumerate(items):
+        for x, part in enumerate(parts):
             if x == s:
                 continue
             xi = np.arange(offsets[x], offsets[x + 1])
-            part = components(item.faces, item.n_points)
             tops = np.full(part.max() + 1, -np.inf)
             np.maximum.at(tops, part, points[xi, 1])
             dist, nearest = tree.query(foot[xi], k=1, distance_upper_bound=spot)
