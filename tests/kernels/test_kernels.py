@@ -317,3 +317,32 @@ def test_compiled_similarities_match_numpy_twins():
         for fn, out in zip((kernels.similarity_place, kb.similarity_place_numpy), outs):
             fn(parts._ref_all, parts._rows, parts._group, *mine, out)
         np.testing.assert_allclose(outs[0], outs[1], atol=1e-12)
+
+
+def test_compiled_layer_ray_search_matches_numpy_twin():
+    # rays down onto a crumpled sheet from random points, each among a random
+    # handful of its triangles (padded), some from behind, some missing
+    from wearfit_usd.kernels import layers as kl
+    rng = np.random.default_rng(5)
+    n = 12
+    u = np.linspace(0.0, 0.11, n)
+    x, y = np.meshgrid(u, u, indexing="ij")
+    pts = np.column_stack([x.ravel(), y.ravel(), rng.normal(0.0, 0.004, n * n)])
+    i, j = np.meshgrid(np.arange(n - 1), np.arange(n - 1), indexing="ij")
+    a = (i * n + j).ravel()
+    faces = np.concatenate([np.column_stack([a, a + n, a + n + 1]), np.column_stack([a, a + 1, a + n + 1])])
+    r = 400
+    top = np.column_stack([rng.uniform(0, 0.11, r), rng.uniform(0, 0.11, r), rng.uniform(-0.01, 0.03, r)])
+    dirs = np.column_stack([rng.normal(0, 0.2, r), rng.normal(0, 0.2, r), -np.ones(r)])
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    dirs[::7] *= -1.0
+    # each ray's 30 nearest triangles (by centroid), a third of them left out
+    cand = cKDTree(pts[faces].mean(axis=1)[:, :2]).query(top[:, :2], k=30)[1].astype(np.int64)
+    cand[rng.random((r, 30)) < 0.3] = -1
+    reach = rng.uniform(0.005, 0.04, r)
+    compiled, c_face = kernels.first_hits(pts, faces, cand, top, dirs, reach)
+    twin, t_face = kl.first_hits_numpy(pts, faces, cand, top, dirs, reach)
+    np.testing.assert_allclose(compiled, twin, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(c_face, t_face)
+    np.testing.assert_array_equal(c_face < 0, ~np.isfinite(twin))
+    assert 50 < np.isfinite(twin).sum() < r - 50      # hits and misses both tested

@@ -9,6 +9,8 @@
   binding, body regions from skin weights, rigid parts' similarity transforms;
 - :mod:`.layers`, :mod:`.corrections` - the layer order between items and the
   per-vertex corrections (push-out, spreading, loose-part smoothing);
+- :mod:`.surface_layers` - outer layers kept over the inner items' triangles,
+  not only their vertices (the dressing's last pass, and every animation frame);
 - :mod:`.repair`, :mod:`.untangle`, :mod:`.body_stretch` - misfitting rigid
   parts released, folded or over-stretched patches re-solved within the
   body's own stretch range;

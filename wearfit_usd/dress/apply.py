@@ -15,7 +15,9 @@ Pipeline (internal space, Y up, metres):
    (:func:`corrections.push_out`), lift outer layers over inner ones
    (:func:`layers.keep_layers`), and spread these per-vertex corrections
    smoothly over the item mesh (:func:`corrections.spread_corrections`);
-4. untangle folded or over-stretched patches (:func:`repair.untangle_items`).
+4. untangle folded or over-stretched patches (:func:`repair.untangle_items`);
+5. keep outer layers over the inner items' triangles, not only their
+   vertices (:class:`surface_layers.SurfaceLayers`, its moves spread).
 """
 from __future__ import annotations
 
@@ -38,6 +40,7 @@ from .corrections import SPREAD_CLEARANCE_DRIFT, push_out, smoothstep, spread_co
 from .layers import keep_layers
 from .plan import DressPlan, plan
 from .repair import release_misfits, untangle_items
+from .surface_layers import SurfaceLayers
 
 
 def fitted_body_points(ref: Character, target: Character) -> np.ndarray:
@@ -84,6 +87,9 @@ class PassOptions:
         Spread the single-vertex corrections over the item mesh.
     untangle : bool
         Re-solve folded or over-stretched patches afterwards.
+    surface_layers : bool
+        Last, keep outer layers over the items under them surface against
+        surface (:mod:`surface_layers`).
     """
     margin: float = 0.003
     near_other: float = 0.03
@@ -91,6 +97,7 @@ class PassOptions:
     inherited_clearance: float = 0.001
     spread: bool = True
     untangle: bool = True
+    surface_layers: bool = True
 
 
 class Evaluation(NamedTuple):
@@ -633,6 +640,19 @@ def apply(plan_: DressPlan, body_points: np.ndarray, body_faces: np.ndarray, pen
         moved |= touched
         timings["untangle_s"] = time.perf_counter() - t2
         debug(f"untangle: {stats}")
+    if penetration and options.surface_layers and plan_.layers:
+        # the inner layers' triangles between their vertices, which the
+        # vertex-to-vertex layer pass cannot see (a coarse skirt's waistband
+        # through a top's hem)
+        t3 = time.perf_counter()
+        movable = ~plan_.rigid_mask() if fixed is None else ~plan_.rigid_mask() & ~fixed
+        surface = SurfaceLayers(plan_.layers, plan_.offsets, plan_.mesh.faces, body_faces, body_points, pts,
+                                movable=movable, rigid_inner=plan_.rigid_item_rows())
+        # its moves spread over their items already (pulls no deeper than
+        # each vertex's room: the harmonic spread would carry them on)
+        pts = surface(body_points, pts)
+        moved |= surface.pushed
+        timings["surface_layers_s"] = time.perf_counter() - t3
     if placed is not None:  # the spread and the untangle leave no trace on them either
         pts[placed.rows] = placed.points
         moved[placed.rows] = False

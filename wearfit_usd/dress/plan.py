@@ -38,6 +38,7 @@ from .corrections import LooseSmoother, looseness
 from .layers import layer_gaps, layer_order, under_skirts
 from .rigid_parts import RigidParts
 from .seams import SEAM_BAND, seam_shares
+from .surface_layers import surface_gaps
 
 SKIRT_K = 60  # hip triangles each skirt-part vertex is bound to (see bind_items)
 SKIRT_TOP = 0.18  # m above the crotch: the parts of a skirt-like item above this (a bodice, a jacket) bind to the
@@ -111,6 +112,13 @@ class AutoRigid:
     max_vertices: int = 4000
 
 
+def mostly_rigid(offsets: np.ndarray, rigid_rows: np.ndarray) -> list:
+    """Indices of the items most of whose vertices (``rigid_rows`` (M,)
+    bool; ``offsets`` their stacked ranges) are in rigid groups: shoes, a
+    hat, short hair, not a suit with a rigid belt."""
+    return [k for k, (a, b) in enumerate(zip(offsets[:-1], offsets[1:])) if b > a and rigid_rows[a:b].mean() > 0.5]
+
+
 @dataclass
 class DressPlan:
     """Everything topology-dependent, built once on the reference body.
@@ -172,6 +180,12 @@ class DressPlan:
     def rigid_mask(self) -> np.ndarray:
         """(M,) bool: item vertices of the rigid groups."""
         return group_mask(self.rigid_groups, len(self.ref_points))
+
+    def rigid_item_rows(self) -> list:
+        """Indices of the items rigid as a whole on the reference
+        (:func:`mostly_rigid`), released on this target or not."""
+        return mostly_rigid(self.offsets, group_mask(list(self.rigid_groups) + list(self.released_groups),
+                                                     len(self.ref_points)))
 
     def skin_decals(self) -> set:
         """Names of the items that lie on the skin, like a decal: 95 % of
@@ -682,6 +696,10 @@ def plan(ref: Character, k: int = 5, use_regions: bool = True, rigid="auto", aut
                      rigid_groups=rigid_groups, rigid_items=rigid_items,
                      insets_kept=rigid_rows,
                      looseness=loose, smoother=LooseSmoother(mesh.neighbours, loose, bound=binding, points=pts),
-                     layers=under_skirts(layer_gaps(ref_query, pts, offsets, order, ref_clear, foot=foot["point"]),
+                     layers=under_skirts(surface_gaps(layer_gaps(ref_query, pts, offsets, order, ref_clear,
+                                                                 foot=foot["point"]),
+                                                      offsets, mesh.faces, body.faces, body.points, pts,
+                                                      movable=~rigid_rows,
+                                                      rigid_inner=mostly_rigid(offsets, rigid_rows)),
                                          items, offsets, pts, ref_clear, foot["point"], skirts, fixed=rigid_rows),
                      timings={"regions_s": t1 - t0, "bind_s": t2 - t1, "plan_rest_s": t3 - t2})

@@ -6,7 +6,7 @@ binding product, rigid-part similarities, smoothing right side, row
 scatters), :mod:`.normals` (face, vertex and pseudo-normals),
 :mod:`.closest` (closest point among candidate triangles, signed),
 :mod:`.grid` (nearest point within a radius), :mod:`.guard` (the
-penetration guard's per-frame kernels), :mod:`.strain` (the strain limit's
+penetration guard's per-frame kernels), :mod:`.layers` (the layer pass's ray search), :mod:`.strain` (the strain limit's
 per-frame pass); :mod:`.jit` is the numba switch and
 :mod:`.warm` compiles everything ahead of time. Each public kernel runs
 compiled when numba is installed and its numpy twin otherwise (set
@@ -28,6 +28,7 @@ from .closest import closest_candidates, closest_params, closest_signed
 from .grid import GridArrays, RadiusGrid
 from .guard import GuardBody, GuardState, guard_estimate, guard_frame
 from .jit import HAVE_NUMBA
+from .layers import first_hits
 from .normals import (
                       corner_normals_numpy,
                       face_normal_sums,
@@ -50,7 +51,7 @@ from .warm import warm_up
 
 __all__ = ["HAVE_NUMBA", "GridArrays", "GuardBody", "GuardState", "RadiusGrid", "add_rows", "assign_rows",
            "binding_eval", "binding_eval_rows", "closest_candidates", "closest_params", "closest_signed",
-           "corner_normals_numpy", "diffusion_rhs", "face_normal_sums", "face_normals",
+           "corner_normals_numpy", "diffusion_rhs", "face_normal_sums", "face_normals", "first_hits",
            "guard_estimate", "guard_frame", "similarity_place", "similarity_transforms", "vertex_incidence",
            "vertex_normals", "vertex_pseudo_normals_numpy", "warm_up", "StrainRest", "strain_frame", "edge_incidence",
            "StrainCaps", "new_caps", "clear_caps", "weld_groups", "wavefront_levels"]

@@ -12,6 +12,7 @@ from .cloth import ClothBody, ClothEdges, ClothParams, ClothSamples, ClothState,
 from .grid import RadiusGrid
 from .guard import GuardBody, GuardState, guard_estimate, guard_frame
 from .jit import HAVE_NUMBA
+from .layers import first_hits
 from .normals import face_normal_sums, face_normals, vertex_normals
 from .strain import StrainRest, edge_incidence, strain_frame, weld_groups
 
@@ -87,4 +88,6 @@ def warm_up() -> bool:
                       np.zeros((2, 3)), unit[:2].copy(), np.zeros(2), *edge_incidence(e, 2),
                       *weld_groups(np.array([0, 1]), np.array([0, 0]), np.full(2, 0.5)))
     strain_frame(rest, pts, unit, np.array([[0.0, 0, 0], [3.0, 0, 0]]), np.ones(2), 1.1, 2, 0.001)
+    # the layer pass's ray search (animate.layer_hold)
+    first_hits(pts, faces, np.array([[0, 1], [1, -1]], dtype=np.int64), pts[:2] + 1.0, -unit[:2], np.ones(2))
     return True
