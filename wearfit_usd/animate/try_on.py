@@ -38,6 +38,7 @@ from ..dress.item_weights import PIECE_WEIGHT, SKINNED_SUFFIX, rigid_pieces, ski
 from ..dress.plan import DressPlan
 from ..dress.plan import plan as plan_dress
 from ..dress.regions import vertex_regions
+from ..dress.surface_layers import SurfaceLayers
 from ..errors import NonFiniteError, USDInputError
 from ..fit.body_fit import fit_character
 from ..geometry.closest import SurfaceQuery
@@ -87,6 +88,8 @@ class AnimateOptions:
     cloth: bool | None = None          # bind mode: loose parts as XPBD cloth (None: when the plan has any)
     strain_limit: bool = True          # bind mode: no item edge stretched beyond the body's own (strain_limit)
     contact_hold: bool = True          # bind mode: skirt parts held on the skin they touch (contact_hold)
+    layer_hold: bool = True            # bind mode: outer layers kept over the items under them every frame
+    #                                    (dress.surface_layers)
     max_frames: int | None = None      # refuse longer shots (retarget.OutputError)
     carry_plan: object = None          # io.usd_carry.CarryPlan: the inputs' materials, primvars... to keep
     rigid_items: str = "skinned"       # bind mode: "skinned" (shoes, hats, glasses by LBS with their binding's
@@ -422,6 +425,19 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
         # its rest: the first pose's dress, or the bind pose's; the weld inside its every pass
         rest_body, rest_items = (base_body, all_base) if bind_rest is None else (target.body.points, bind_rest)
         strain = StrainLimit(rest_items, frame_plan.mesh.edges, body.faces, rest_body, movable, weld=weld)
+    # outer layers kept over the items under them, surface against surface (dress.surface_layers)
+    layer_hold = None
+    if opt.mode == "bind" and opt.layer_hold and frame_plan.layers:
+        # not the rigid groups' vertices (a suit's belt moves as a whole), nor
+        # the items skinned whole but their hinges
+        movable = ~frame_plan.rigid_mask()
+        if rigid is not None:
+            movable[rigid.rows] = False
+            movable[rigid.hinge_rows] = True
+        layer_hold = SurfaceLayers(frame_plan.layers, frame_plan.offsets, frame_plan.mesh.faces, body.faces,
+                                   base_body, frame0_items, movable=movable,
+                                   rigid_inner=frame_plan.rigid_item_rows())
+        layer_hold = layer_hold if layer_hold.active else None
     # vertices outside the body in the bind pose's dress are guarded even
     # where the first pose's dress starts them inside it (the strain limit's
     # rest clearances are theirs)
@@ -596,6 +612,8 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
                 pts[pushed_rows] = push_guard.apply(body_f, pts[pushed_rows])[0]
             elif opt.mode == "bind" and not guarded:
                 pts, _ = guard.apply(body_f, pts)
+            if layer_hold is not None:
+                pts = layer_hold(body_f, pts)
             floors = cloth.floors(rows=floor_rows) if floor_rows is not None else None
             if strain is not None:
                 if pushed_rows is not None:
@@ -603,6 +621,8 @@ def animate(reference: Character, target: Character, motion, out_path, options: 
                     pushed[pushed_rows] = push_guard.push > 0
                 else:
                     pushed = guard.push > 0
+                if layer_hold is not None:
+                    pushed |= layer_hold.pushed
                 strain(body_f, pts, pushed, planes=floors)
             if weld is not None:
                 weld(pts)

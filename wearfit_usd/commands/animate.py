@@ -71,6 +71,9 @@ def register(sub, common):
                    help="bind mode: hold a skirt's bound parts on the skin they touch in the static dress (its "
                         "binding hangs from the hips above the buttocks: bent forward, the back stood 5 cm off "
                         "them) (default: on)")
+    p.add_argument("--layer-hold", action=argparse.BooleanOptionalAction, default=True,
+                   help="bind mode: keep each frame's outer layers over the items under them, surface against "
+                        "surface (a top's hem over a skirt's waistband) (default: on)")
     p.add_argument("--no-item-joints", action="store_true",
                    help="--items skinned|both: the skinned items' loose parts (a hanging ponytail, a suit's loose "
                         "hems) keep the skin's weights; by default they get joints of their own, appended to the "
@@ -165,7 +168,7 @@ def run(args) -> int:
                           carry_plan=_carry_plan(reference, target, args),
                           hidden_body="delete" if args.delete_hidden_body else "subset",
                           rigid_items=args.rigid_items, strain_limit=args.strain_limit,
-                          contact_hold=args.contact_hold, skin_fit=not args.no_skin_fit,
+                          contact_hold=args.contact_hold, layer_hold=args.layer_hold, skin_fit=not args.no_skin_fit,
                           item_joints=not args.no_item_joints)
     rep = animate(reference, target, motion, args.output, opts)
     t = rep.timings
