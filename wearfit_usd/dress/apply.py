@@ -17,7 +17,8 @@ Pipeline (internal space, Y up, metres):
    smoothly over the item mesh (:func:`corrections.spread_corrections`);
 4. untangle folded or over-stretched patches (:func:`repair.untangle_items`);
 5. keep outer layers over the inner items' triangles, not only their
-   vertices (:class:`surface_layers.SurfaceLayers`, its moves spread).
+   vertices (:class:`surface_layers.SurfaceLayers`), the moves spread and
+   checked against the body once more.
 """
 from __future__ import annotations
 
@@ -648,10 +649,16 @@ def apply(plan_: DressPlan, body_points: np.ndarray, body_faces: np.ndarray, pen
         movable = ~plan_.rigid_mask() if fixed is None else ~plan_.rigid_mask() & ~fixed
         surface = SurfaceLayers(plan_.layers, plan_.offsets, plan_.mesh.faces, body_faces, body_points, pts,
                                 movable=movable, rigid_inner=plan_.rigid_item_rows())
-        # its moves spread over their items already (pulls no deeper than
-        # each vertex's room: the harmonic spread would carry them on)
-        pts = surface(body_points, pts)
-        moved |= surface.pushed
+        single = surface(body_points, pts)
+        if surface.pushed.any():
+            # spread smoothly once more (without it, single lifts and pulls
+            # left edges stretched 2x in a first pose's dress on GDQuest's
+            # mannequin), and whatever the spread carried into the body out
+            lifted = spread_pass(plan_, pts, single, surface.pushed) if options.spread else None
+            spread_pts = single if lifted is None else lifted.points
+            check = surface.pushed if lifted is None else surface.pushed | lifted.moved
+            pts, again = push_out(query, spread_pts, target, mask=check)
+            moved |= check | again
         timings["surface_layers_s"] = time.perf_counter() - t3
     if placed is not None:  # the spread and the untangle leave no trace on them either
         pts[placed.rows] = placed.points

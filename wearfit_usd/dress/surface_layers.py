@@ -41,8 +41,8 @@ the vertex rule, and no item rigid as a whole (shoes, a hat) is an inner
 layer here. A lift is capped at ``reach + sep``: an inner surface farther
 up is another sheet (a lapel, a fold), not this layer coming through.
 
-Built once on a dress; :func:`apply.apply` runs it after its passes,
-:func:`animate.try_on.animate`
+Built once on a dress; :func:`apply.apply` runs it after its passes (its
+moves spread over the items once more), :func:`animate.try_on.animate`
 every frame between the penetration guard and the strain limit.
 """
 from __future__ import annotations
