@@ -291,12 +291,11 @@ def test_the_long_skirt_stays_over_the_hot_pants_and_under_the_top_in_a_walk(tmp
 
 
 @pytest.mark.slow
-def test_the_top_hangs_over_the_long_skirt_in_the_static_dress(monkeypatch):
+def test_the_top_hangs_over_the_long_skirt_in_the_static_dress():
     # ref_female_longskirt dressed on body_female_heavy: the skirt's
     # waistband stood out through the top's hem in tongues between the
     # skirt's vertices (7.4 % of the top's vertices over the skirt under it,
     # measured); the last pass leaves none
-    import wearfit_usd.dress.apply as apply_mod
     from wearfit_usd.dress.apply import dress
     from wearfit_usd.geometry.closest import SurfaceQuery
     from wearfit_usd.geometry.mesh import components
@@ -320,12 +319,6 @@ def test_the_top_hangs_over_the_long_skirt_in_the_static_dress(monkeypatch):
         assert span.sum() > 100
         return 100.0 * (span & over).sum() / span.sum()
 
-    with_pass = under_skirt(dress(ref, tgt))
-
-    class Off(SurfaceLayers):
-        def __call__(self, body, points):
-            self.pushed[:] = False
-            return points
-    monkeypatch.setattr(apply_mod, "SurfaceLayers", Off)
+    with_pass = under_skirt(dress(ref, tgt, surface_layers=True))
     without = under_skirt(dress(ref, tgt))
     assert with_pass < 1.0 < 4.0 < without

@@ -9,8 +9,8 @@ the outer vertex between the inner's vertices: a coarse inner layer comes
 through a fine outer one. ``ref_female_longskirt``'s skirt (vertices 42 mm
 apart) stood out through the top's hem in tongues, statically on
 ``body_female_heavy`` (7 % of the top's vertices over the skirt lay under
-it) and in every frame of the arms-held-high dance (12-24 %), where the
-evaluated items follow the body each on its own.
+it) and in every frame of the arms-held-high dance (12-24 %), where no
+layer pass ran: the evaluated items follow the body each on its own.
 
 :class:`SurfaceLayers`, both ways round, along the body normal (of each
 vertex's nearest body vertex, followed over the body's edges from call to
@@ -41,9 +41,11 @@ the vertex rule, and no item rigid as a whole (shoes, a hat) is an inner
 layer here. A lift is capped at ``reach + sep``: an inner surface farther
 up is another sheet (a lapel, a fold), not this layer coming through.
 
-Built once on a dress; :func:`apply.apply` runs it after its passes (its
-moves spread over the items once more), :func:`animate.try_on.animate`
-every frame between the penetration guard and the strain limit.
+Built once on a dress; :func:`animate.try_on.animate` runs it every frame
+(the first included) between the penetration guard and the strain limit;
+:func:`apply.apply` after its passes when asked (``surface_layers``; its
+moves then spread over the items once more: off by default, see
+:class:`apply.PassOptions`).
 """
 from __future__ import annotations
 
