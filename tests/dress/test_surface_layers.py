@@ -229,6 +229,21 @@ def test_the_nearest_body_vertex_is_followed_over_the_edges():
     np.testing.assert_allclose(np.linalg.norm(body[cur] - pts, axis=1), exact_d, atol=1e-12)
 
 
+def test_bad_arguments():
+    body, body_faces = _body()
+    inner, outer = _grid(5, 0.2, 0.010), _grid(11, 0.1, 0.016)
+    pts, faces, offsets = _stack(inner, outer)
+    layers = _layers(offsets, 0.005, len(outer[0]))
+    with pytest.raises(ValueError, match="offsets"):
+        SurfaceLayers(layers, offsets[:-1], faces, body_faces, body, pts)
+    with pytest.raises(ValueError, match="item_faces"):
+        SurfaceLayers(layers, offsets, faces + len(pts), body_faces, body, pts)
+    with pytest.raises(ValueError, match="movable"):
+        SurfaceLayers(layers, offsets, faces, body_faces, body, pts, movable=np.ones(3, dtype=bool))
+    with pytest.raises(ValueError, match="body_faces"):
+        SurfaceLayers(layers, offsets, faces, body_faces, body[:10], pts)
+
+
 def test_no_layers_or_no_partners_is_inactive():
     body, body_faces = _body()
     inner, outer = _grid(5, 0.2, 0.010), _grid(11, 0.1, 0.016)

@@ -160,9 +160,9 @@ def _descend(body: np.ndarray, ring: np.ndarray, points: np.ndarray, start: np.n
 
 
 class SurfaceLayers:
-    """``SurfaceLayers(...)(body (N, 3), points (M, 3)) -> points``: outer-layer
-    vertices pushed out along the body normal until the inner item's
-    surface under them lies ``sep`` below (see the module).
+    """``SurfaceLayers(...)(body (N, 3), points (M, 3)) -> points``: outer
+    layers kept over the items under them, surface against surface, both
+    ways round (see the module); ``pushed`` (M,) says which vertices moved.
 
     Parameters
     ----------
@@ -197,8 +197,20 @@ class SurfaceLayers:
                  rigid_inner=()):
         items0 = np.asarray(items0, dtype=np.float64)
         m = len(items0)
-        rows, seps, inner = [], [], []
+        offsets = np.asarray(offsets, dtype=np.int64)
         faces = np.asarray(item_faces, dtype=np.int64)
+        if items0.ndim != 2 or items0.shape[1] != 3 or len(offsets) < 1 or offsets[-1] != m:
+            raise ValueError(f"items0 {items0.shape} and offsets ending at {offsets[-1] if len(offsets) else None}: "
+                             "expected (M, 3) points and offsets ending at M")
+        if faces.size and (faces.ndim != 2 or faces.shape[1] != 3 or faces.min() < 0 or faces.max() >= m):
+            raise ValueError(f"item_faces {faces.shape}: expected (F, 3) indices into the {m} item points")
+        if movable is not None and np.shape(movable) != (m,):
+            raise ValueError(f"movable {np.shape(movable)}: expected ({m},)")
+        if np.ndim(body0) != 2 or np.shape(body0)[1] != 3 or (np.size(body_faces)
+                                                              and int(np.max(body_faces)) >= len(body0)):
+            raise ValueError(f"body_faces (up to {int(np.max(body_faces)) if np.size(body_faces) else None}) and "
+                             f"body0 {np.shape(body0)}: expected (N, 3) body points the faces index")
+        rows, seps, inner = [], [], []
         # each item's connected parts (labels over its own vertices)
         labels = components(faces, m)
         parts = [labels[a:b] for a, b in zip(offsets[:-1], offsets[1:])]
