@@ -54,8 +54,8 @@ import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
 from ..geometry.closest import VertexNormals
-from ..geometry.mesh import components, edges
-from ..kernels import first_hits
+from ..geometry.mesh import adjacency, components
+from ..kernels import first_hits, vertex_incidence
 
 #: m: how far above an outer vertex the inner surface is looked for
 REACH = 0.02
@@ -69,8 +69,7 @@ SPREAD_RINGS = 3
 def _face_rings(faces: np.ndarray, n_points: int, seeds: np.ndarray, rings: int = 2) -> np.ndarray:
     """The faces within ``rings`` face rings of each seed vertex: (S, C)
     face indices padded with -1 (C the largest count)."""
-    nf = len(faces)
-    inc = sp.csr_matrix((np.ones(3 * nf), (faces.ravel(), np.repeat(np.arange(nf), 3))), shape=(n_points, nf))
+    inc = vertex_incidence(faces, n_points)
     verts = sp.csr_matrix((np.ones(len(seeds)), (np.arange(len(seeds)), seeds)), shape=(len(seeds), n_points))
     for r in range(rings):
         near_faces = verts @ inc                 # faces touching the current vertex set
@@ -88,14 +87,13 @@ def _face_rings(faces: np.ndarray, n_points: int, seeds: np.ndarray, rings: int 
 
 
 def _vertex_rings(faces: np.ndarray, n: int) -> np.ndarray:
-    """(n, K) each vertex's neighbours over the mesh's edges, padded by
-    repeating the vertex itself."""
-    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    e = np.unique(np.concatenate([e, e[:, ::-1]]), axis=0)
-    counts = np.bincount(e[:, 0], minlength=n)
+    """(n, K) each vertex's neighbours over the mesh's edges (ascending),
+    padded by repeating the vertex itself."""
+    adj = adjacency(faces, n)
+    counts = np.diff(adj.indptr)
     out = np.repeat(np.arange(n)[:, None], max(int(counts.max(initial=0)), 1), axis=1)
-    cols = np.arange(len(e)) - np.repeat(np.cumsum(counts) - counts, counts)
-    out[e[:, 0], cols] = e[:, 1]
+    rows = np.repeat(np.arange(n), counts)
+    out[rows, np.arange(len(rows)) - np.repeat(adj.indptr[:-1], counts)] = adj.indices
     return out
 
 
@@ -240,9 +238,7 @@ class SurfaceLayers:
         if not self.active:
             return
         self.faces = faces
-        e = edges(faces)
-        self.adjacency = sp.csr_matrix((np.ones(2 * len(e)), (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])),
-                                       shape=(m, m))
+        self.adjacency = adjacency(faces, m)
         # per entry, its rows and the inner vertices they may be compared with;
         # each frame, the nearest of those to an outer vertex names its
         # candidate triangles (not the plan's partner, chosen on the reference,
